@@ -1,0 +1,1 @@
+"""Agents for smpl-envs (PPO, AMP, PMCP, PULSE): arrive with a later issue."""

@@ -1,0 +1,165 @@
+"""The SMPL humanoid as MJCF, built with `mujoco.MjSpec` from a `Skeleton`.
+
+24 bodies whose rest frames are world-aligned, each but the pelvis with x, y, z hinges at its
+joint; a free pelvis; MuJoCo position actuators (PD inside the solver, implicitfast integration).
+Gains and torque limits are REFERENCE.md's, scaled by body mass / 74 kg so every body shape gets
+the same control authority per kilogram.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from .skeleton import (
+    ACTION_SCALE, BODY_NAMES, HINGE_AXES, KD, KP, MEAN_MASS, MEAN_SKELETON, PARENTS, TORQUE_LIMIT,
+    Skeleton, anatomical_limits,
+)
+
+PHYSICS_TIMESTEP = 1.0 / 120.0  # measured: stands at zero action and runs fast (README, benchmarks)
+ARMATURE = 0.02
+FRICTION = (1.0, 0.005, 0.0001)
+
+# Pairs of bodies that touch at rest or cannot meaningfully collide (besides parent-child, which
+# MuJoCo filters by default).
+EXCLUDED_PAIRS = (
+    ("Torso", "Chest"), ("Head", "Chest"), ("L_Shoulder", "Chest"), ("R_Shoulder", "Chest"),
+    ("L_Knee", "R_Ankle"), ("L_Knee", "R_Toe"), ("R_Knee", "L_Ankle"), ("R_Knee", "L_Toe"),
+    ("Pelvis", "Spine"), ("L_Hip", "R_Hip"), ("Chest", "L_Thorax"), ("Chest", "R_Thorax"),
+    ("Neck", "L_Thorax"), ("Neck", "R_Thorax"), ("L_Thorax", "R_Thorax"),
+)
+_GEOM_TYPES = {
+    "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+    "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
+    "box": mujoco.mjtGeom.mjGEOM_BOX,
+    "mesh": mujoco.mjtGeom.mjGEOM_MESH,
+}
+_SKIN = (0.84, 0.62, 0.48, 1.0)
+
+
+def standing_height(skeleton: Skeleton) -> float:
+    """Pelvis height at which the rest pose (all hinges at zero) stands with its soles on z = 0."""
+    from ..motion.kinematics import forward_kinematics, lowest_point
+
+    ident = np.tile([1.0, 0.0, 0.0, 0.0], (1, len(BODY_NAMES), 1))
+    pos, quat = forward_kinematics(np.zeros((1, 3)), ident, skeleton.offsets)
+    return float(-lowest_point(pos, quat, skeleton)[0])
+
+
+def _add_scene(spec: mujoco.MjSpec) -> None:
+    spec.add_texture(name="skybox", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX,
+                     builtin=mujoco.mjtBuiltin.mjBUILTIN_GRADIENT, rgb1=[0.55, 0.7, 0.85],
+                     rgb2=[0.1, 0.12, 0.15], width=256, height=256)
+    spec.add_texture(name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D,
+                     builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, rgb1=[0.32, 0.34, 0.37],
+                     rgb2=[0.26, 0.28, 0.31], mark=mujoco.mjtMark.mjMARK_EDGE,
+                     markrgb=[0.6, 0.62, 0.65], width=300, height=300)
+    floor_mat = spec.add_material(name="floor", texrepeat=[1, 1], texuniform=True, reflectance=0.1)
+    floor_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
+    spec.add_material(name="skin", rgba=_SKIN, specular=0.2, shininess=0.2)
+    spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+    spec.visual.headlight.diffuse = [0.5, 0.5, 0.5]
+    spec.visual.global_.offwidth = 1280
+    spec.visual.global_.offheight = 960
+    spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[100, 100, 0.05],
+                            material="floor", friction=FRICTION, condim=3)
+    spec.worldbody.add_light(name="sun", pos=[0, 0, 6], dir=[0, 0.2, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+                             diffuse=[0.6, 0.6, 0.6], castshadow=True)
+
+
+def build_spec(
+    skeleton: Skeleton = MEAN_SKELETON,
+    joint_limits: str = "none",
+    timestep: float = PHYSICS_TIMESTEP,
+    scene: bool = True,
+) -> mujoco.MjSpec:
+    """The humanoid's MjSpec (uncompiled), for callers that add objects before compiling."""
+    if joint_limits not in ("none", "anatomical"):
+        raise ValueError(f"joint_limits must be 'none' or 'anatomical', got {joint_limits!r}")
+    spec = mujoco.MjSpec()
+    spec.modelname = "smpl_humanoid"
+    spec.compiler.degree = False
+    spec.option.timestep = timestep
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    if scene:
+        _add_scene(spec)
+    gain = skeleton.mass / MEAN_MASS
+    limits = anatomical_limits() if joint_limits == "anatomical" else None
+
+    bodies = []
+    for i, name in enumerate(BODY_NAMES):
+        if i == 0:
+            body = spec.worldbody.add_body(name=name, pos=[0, 0, standing_height(skeleton)])
+            body.add_freejoint(name="root")
+            body.add_camera(name="track", mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM,
+                            pos=[0.6, -3.4, 0.35], xyaxes=[1, 0.18, 0, 0, 0.1, 1])
+        else:
+            body = bodies[PARENTS[i]].add_body(name=name, pos=skeleton.offsets[i])
+            for k, axis in enumerate(HINGE_AXES):
+                j = 3 * (i - 1) + k
+                joint = body.add_joint(name=f"{name}_{axis}", type=mujoco.mjtJoint.mjJNT_HINGE,
+                                       axis=np.eye(3)[k], armature=ARMATURE)
+                if limits is not None:
+                    joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+                    joint.range = limits[j]
+        geom = skeleton.geoms[i]
+        kwargs = dict(name=f"{name}_geom", type=_GEOM_TYPES[geom.kind], mass=geom.mass,
+                      friction=FRICTION, condim=3, material="skin" if scene else "",
+                      rgba=_SKIN)
+        if geom.kind == "capsule":
+            kwargs.update(fromto=geom.fromto, size=[geom.size[0], 0, 0])
+        elif geom.kind == "mesh":
+            spec.add_mesh(name=f"{name}_hull", uservert=np.asarray(geom.vertices, float).ravel())
+            kwargs.update(meshname=f"{name}_hull")
+        else:
+            kwargs.update(pos=geom.pos, size=list(geom.size) + [0] * (3 - len(geom.size)))
+        body.add_geom(**kwargs)
+        bodies.append(body)
+
+    for a, b in EXCLUDED_PAIRS:
+        spec.add_exclude(bodyname1=a, bodyname2=b)
+    for j, name in enumerate(f"{b}_{a}" for b in BODY_NAMES[1:] for a in HINGE_AXES):
+        act = spec.add_actuator(name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        act.set_to_position(kp=KP[j] * gain, kv=KD[j] * gain)
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.ctrlrange = [-ACTION_SCALE[j], ACTION_SCALE[j]]
+        act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.forcerange = [-TORQUE_LIMIT[j] * gain, TORQUE_LIMIT[j] * gain]
+    return spec
+
+
+def build_humanoid(
+    betas=None,
+    gender: str = "neutral",
+    smpl_model_path: str | Path | None = None,
+    *,
+    mesh: bool = False,
+    joint_limits: str = "none",
+    timestep: float = PHYSICS_TIMESTEP,
+    skeleton: Skeleton | None = None,
+    return_spec: bool = False,
+):
+    """Compile the SMPL humanoid.
+
+    With no arguments: the neutral mean shape of REFERENCE.md (no SMPL file needed). With
+    `smpl_model_path` (the user's own SMPL model, .pkl or .npz): the body of `betas` for that
+    model, capsule geometry fitted to the skinned mesh, or the convex hull per bone if `mesh`.
+    `joint_limits` is "none" (hinges wide open, as PHC trains) or "anatomical".
+    Returns the `mujoco.MjModel`, or `(model, spec)` if `return_spec`.
+    """
+    if skeleton is None:
+        if smpl_model_path is None:
+            if betas is not None and np.any(np.asarray(betas) != 0):
+                raise ValueError("betas other than zero need smpl_model_path (your SMPL model file)")
+            if mesh:
+                raise ValueError("mesh=True needs smpl_model_path: the hulls come from the SMPL mesh")
+            skeleton = MEAN_SKELETON
+        else:
+            from .smpl_model import skeleton_from_smpl
+
+            skeleton = skeleton_from_smpl(smpl_model_path, betas=betas, gender=gender, mesh=mesh)
+    spec = build_spec(skeleton, joint_limits=joint_limits, timestep=timestep)
+    model = spec.compile()
+    return (model, spec) if return_spec else model

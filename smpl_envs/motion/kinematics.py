@@ -1,0 +1,119 @@
+"""Batched kinematics of the SMPL skeleton, over many clips concatenated along the frame axis.
+
+A MotionLib holds thousands of clips as one (F, ...) array per quantity. Everything here works on
+such arrays at once; per-clip operations along time (finite differences, smoothing, unwrapping)
+take a `Segments` that tells each frame where its clip starts and ends, and never read across a
+clip boundary. A single clip is the batch of one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..humanoid.skeleton import PARENTS, Skeleton
+from ..rotations import quat_apply, quat_inv, quat_mul, quat_to_euler_xyz, quat_to_rotvec
+
+
+def forward_kinematics(
+    root_pos: np.ndarray, local_quat: np.ndarray, offsets: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Body positions (..., 24, 3) and world orientations (..., 24, 4) from the pelvis position
+    (..., 3), local rotations (..., 24, 4; entry 0 is the pelvis' world orientation) and joint
+    offsets (24, 3). This is MuJoCo's kinematics for bodies whose joints sit at the body origin."""
+    pos = [root_pos]
+    quat = [local_quat[..., 0, :]]
+    for i in range(1, len(PARENTS)):  # tree depth forces a loop over bodies; frames are batched
+        p = PARENTS[i]
+        pos.append(pos[p] + quat_apply(quat[p], offsets[i]))
+        quat.append(quat_mul(quat[p], local_quat[..., i, :]))
+    return np.stack(pos, -2), np.stack(quat, -2)
+
+
+def lowest_point(body_pos: np.ndarray, body_quat: np.ndarray, skeleton: Skeleton) -> np.ndarray:
+    """Height (...,) of the lowest point of the humanoid's collision geometry in each frame."""
+    points, radii = skeleton.support_points()  # (24, K, 3), (24, K)
+    k = points.shape[1]
+    world = body_pos[..., None, :] + quat_apply(
+        np.repeat(body_quat[..., None, :], k, -2), np.broadcast_to(points, body_quat.shape[:-1] + points.shape[1:])
+    )
+    return (world[..., 2] - radii).min(axis=(-1, -2))
+
+
+def hinge_angles(local_quat: np.ndarray) -> np.ndarray:
+    """(..., 69) hinge angles whose x-y-z composition reproduces each non-root local rotation."""
+    return quat_to_euler_xyz(local_quat[..., 1:, :]).reshape(*local_quat.shape[:-2], -1)
+
+
+@dataclass(frozen=True)
+class Segments:
+    """Clip boundaries of a concatenated frame axis: frame f belongs to [first[f], last[f]]."""
+
+    starts: np.ndarray  # (M,) first frame of each clip
+    lengths: np.ndarray  # (M,)
+
+    @classmethod
+    def from_lengths(cls, lengths) -> "Segments":
+        lengths = np.asarray(lengths, dtype=np.int64)
+        return cls(np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64), lengths)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.lengths.sum())
+
+    @property
+    def clip_of_frame(self) -> np.ndarray:
+        return np.repeat(np.arange(len(self.lengths)), self.lengths)
+
+    @property
+    def first(self) -> np.ndarray:
+        return np.repeat(self.starts, self.lengths)
+
+    @property
+    def last(self) -> np.ndarray:
+        return np.repeat(self.starts + self.lengths - 1, self.lengths)
+
+    def shifted(self, k: int) -> np.ndarray:
+        """Index of frame f + k, clamped to f's own clip."""
+        return np.clip(np.arange(self.num_frames) + k, self.first, self.last)
+
+
+def time_derivative(x: np.ndarray, seg: Segments, dt: float) -> np.ndarray:
+    """Central differences inside each clip, one-sided at its ends, zero for one-frame clips."""
+    nxt, prv = seg.shifted(1), seg.shifted(-1)
+    span = (nxt - prv).astype(float)
+    span = span.reshape(-1, *([1] * (x.ndim - 1)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(span > 0, (x[nxt] - x[prv]) / (span * dt), 0.0)
+
+
+def angular_velocity(quat: np.ndarray, seg: Segments, dt: float) -> np.ndarray:
+    """World-frame angular velocity (F, ..., 3) of orientations (F, ..., 4), as time_derivative."""
+    nxt, prv = seg.shifted(1), seg.shifted(-1)
+    span = (nxt - prv).astype(float).reshape(-1, *([1] * (quat.ndim - 1)))
+    rotvec = quat_to_rotvec(quat_mul(quat[nxt], quat_inv(quat[prv])))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(span > 0, rotvec / (span * dt), 0.0)
+
+
+def smooth(x: np.ndarray, seg: Segments, sigma: float) -> np.ndarray:
+    """Gaussian smoothing along frames inside each clip (edge frames repeated at clip ends)."""
+    if sigma <= 0:
+        return x
+    radius = int(np.ceil(3 * sigma))
+    taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
+    taps /= taps.sum()
+    out = np.zeros_like(x, dtype=float)
+    for k, w in zip(range(-radius, radius + 1), taps):  # a handful of taps, each one gather
+        out += w * x[seg.shifted(k)]
+    return out
+
+
+def unwrap(angles: np.ndarray, seg: Segments) -> np.ndarray:
+    """np.unwrap along frames, restarting at every clip's first frame."""
+    step = np.diff(angles, axis=0, prepend=angles[:1])
+    step = (step + np.pi) % (2 * np.pi) - np.pi
+    step[seg.starts] = 0.0
+    total = np.cumsum(step, axis=0)
+    return angles[seg.first] + total - total[seg.first]

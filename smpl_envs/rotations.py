@@ -2,8 +2,9 @@
 
 Conversions go through `scipy.spatial.transform.Rotation` (well tested, vectorised), which stores
 (x, y, z, w) and only takes flat stacks: here we reshape and pin the scalar-first order so the
-rest of the package never thinks about either. Products do not renormalise or canonicalise the
-sign; conversions return w >= 0.
+rest of the package never thinks about either. Products and vector rotations are written out in
+numpy, because scipy's measured ~20x slower on 300k-frame stacks; they neither renormalise nor
+canonicalise the sign. Conversions return w >= 0.
 """
 
 from __future__ import annotations
@@ -21,15 +22,8 @@ def _quat(r: Rotation, shape: tuple[int, ...]) -> np.ndarray:
     return q.reshape(*shape, 4)
 
 
-def _broadcast(q: np.ndarray, v: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, tuple]:
-    q, v = np.asarray(q, float), np.asarray(v, float)
-    shape = np.broadcast_shapes(q.shape[:-1], v.shape[:-1])
-    return np.broadcast_to(q, shape + (4,)), np.broadcast_to(v, shape + (n,)), shape
-
-
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a * b (apply b first, then a). Leading shapes broadcast."""
-    # Written out rather than scipy's `*`, which measured ~20x slower on 300k-frame stacks.
     a, b = np.asarray(a, float), np.asarray(b, float)
     aw, ax, ay, az = np.moveaxis(a, -1, 0)
     bw, bx, by, bz = np.moveaxis(b, -1, 0)
@@ -47,8 +41,17 @@ def quat_inv(q: np.ndarray) -> np.ndarray:
 
 def quat_apply(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors v (..., 3) by q (..., 4). Leading shapes broadcast."""
-    q, v, shape = _broadcast(q, v, 3)
-    return _rot(q).apply(np.require(v.reshape(-1, 3), requirements='CW')).reshape(shape + (3,))
+    # v' = v + 2w (u x v) + 2 u x (u x v), u the vector part: numpy-fast on large stacks.
+    q, v = np.asarray(q, float), np.asarray(v, float)
+    u, w = q[..., 1:], q[..., :1]
+    uv = np.cross(u, v)
+    return v + 2.0 * (w * uv + np.cross(u, uv))
+
+
+def quat_z_axis_row(q: np.ndarray) -> np.ndarray:
+    """Third row of q's rotation matrix: the world z of a rotated vector is this row . v."""
+    w, x, y, z = np.moveaxis(np.asarray(q, float), -1, 0)
+    return np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)
 
 
 def quat_from_rotvec(rv: np.ndarray) -> np.ndarray:
@@ -81,12 +84,22 @@ def quat_to_euler_xyz(q: np.ndarray) -> np.ndarray:
 
 
 def quat_slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Shortest-arc interpolation; t broadcasts against the leading shape of q0, q1."""
-    q0, q1 = np.broadcast_arrays(q0, q1)
-    r0 = _rot(q0)
-    rel = (r0.inv() * _rot(q1)).as_rotvec()
-    t = np.broadcast_to(np.asarray(t, float)[..., None], q0.shape[:-1] + (1,)).reshape(-1, 1)
-    return _quat(r0 * Rotation.from_rotvec(rel * t), q0.shape[:-1])
+    """Shortest-arc interpolation; t (...,) or (..., 1) broadcasts against q0, q1 (..., 4)."""
+    q0, q1 = np.asarray(q0), np.asarray(q1)
+    t = np.asarray(t, q0.dtype)
+    if t.ndim and t.shape[-1] != 1:
+        t = t[..., None]
+    dot = np.sum(q0 * q1, -1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)  # q and -q are one rotation: take the short way round
+    dot = np.clip(np.abs(dot), 0.0, 1.0)
+    theta = np.arccos(dot)
+    sin = np.sin(theta)
+    near = sin < 1e-6  # (almost) equal rotations: linear blend, then renormalise
+    safe = np.where(near, 1.0, sin)
+    w0 = np.where(near, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
+    w1 = np.where(near, t, np.sin(t * theta) / safe)
+    q = w0 * q0 + w1 * q1
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 def yaw_quat(yaw: np.ndarray) -> np.ndarray:

@@ -13,7 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..humanoid.skeleton import PARENTS, Skeleton
-from ..rotations import quat_apply, quat_inv, quat_mul, quat_to_euler_xyz, quat_to_rotvec
+from ..rotations import (
+    quat_apply, quat_inv, quat_mul, quat_to_euler_xyz, quat_to_rotvec, quat_z_axis_row,
+)
 
 
 def forward_kinematics(
@@ -34,11 +36,8 @@ def forward_kinematics(
 def lowest_point(body_pos: np.ndarray, body_quat: np.ndarray, skeleton: Skeleton) -> np.ndarray:
     """Height (...,) of the lowest point of the humanoid's collision geometry in each frame."""
     points, radii = skeleton.support_points()  # (24, K, 3), (24, K)
-    k = points.shape[1]
-    world = body_pos[..., None, :] + quat_apply(
-        np.repeat(body_quat[..., None, :], k, -2), np.broadcast_to(points, body_quat.shape[:-1] + points.shape[1:])
-    )
-    return (world[..., 2] - radii).min(axis=(-1, -2))
+    z = body_pos[..., None, 2] + np.einsum("...bj,bkj->...bk", quat_z_axis_row(body_quat), points)
+    return (z - radii).min(axis=(-1, -2))
 
 
 def hinge_angles(local_quat: np.ndarray) -> np.ndarray:

@@ -147,6 +147,8 @@ def _read_own(path, data) -> RawMotion:
 
 
 def _read_npz(path, skeleton: Skeleton) -> list[RawMotion]:
+    if not zipfile.is_zipfile(path):
+        raise MotionFileError(path, "not a .npz file (no zip archive inside; truncated or mislabelled?)")
     try:
         with np.load(path, allow_pickle=False) as npz:
             data = {k: npz[k] for k in npz.files}

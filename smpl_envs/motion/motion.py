@@ -55,7 +55,7 @@ class RawMotion:
         i1 = np.minimum(i0 + 1, self.num_frames - 1)
         w = np.clip(src - i0, 0.0, 1.0)
         root = self.root_pos[i0] + w[:, None] * (self.root_pos[i1] - self.root_pos[i0])
-        quat = quat_slerp(self.local_quat[i0], self.local_quat[i1], w[:, None])
+        quat = quat_slerp(self.local_quat[i0], self.local_quat[i1], w[:, None, None])
         return replace(self, fps=fps, root_pos=root, local_quat=quat)
 
     def rotated_yaw(self, yaw: float) -> "RawMotion":

@@ -37,6 +37,16 @@ _GEOM_TYPES = {
     "mesh": mujoco.mjtGeom.mjGEOM_MESH,
 }
 _SKIN = (0.84, 0.62, 0.48, 1.0)
+TRACK_CAMERA_OFFSET = np.array([2.6, -2.6, 0.55])  # front-left three-quarter view of the pelvis
+
+
+def _look_at(eye, target) -> np.ndarray:
+    """MuJoCo camera xyaxes (right, up) for a camera at `eye` looking at `target`, z up."""
+    forward = np.asarray(target, float) - eye
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    return np.concatenate([right, np.cross(right, forward)])
 
 
 def standing_height(skeleton: Skeleton) -> float:
@@ -56,7 +66,7 @@ def _add_scene(spec: mujoco.MjSpec) -> None:
                      builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, rgb1=[0.32, 0.34, 0.37],
                      rgb2=[0.26, 0.28, 0.31], mark=mujoco.mjtMark.mjMARK_EDGE,
                      markrgb=[0.6, 0.62, 0.65], width=300, height=300)
-    floor_mat = spec.add_material(name="floor", texrepeat=[1, 1], texuniform=True, reflectance=0.1)
+    floor_mat = spec.add_material(name="floor", texrepeat=[1, 1], texuniform=True, reflectance=0.05)
     floor_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
     spec.add_material(name="skin", rgba=_SKIN, specular=0.2, shininess=0.2)
     spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
@@ -94,7 +104,7 @@ def build_spec(
             body = spec.worldbody.add_body(name=name, pos=[0, 0, standing_height(skeleton)])
             body.add_freejoint(name="root")
             body.add_camera(name="track", mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM,
-                            pos=[0.6, -3.4, 0.35], xyaxes=[1, 0.18, 0, 0, 0.1, 1])
+                            pos=TRACK_CAMERA_OFFSET, xyaxes=_look_at(TRACK_CAMERA_OFFSET, [0, 0, -0.15]))
         else:
             body = bodies[PARENTS[i]].add_body(name=name, pos=skeleton.offsets[i])
             for k, axis in enumerate(HINGE_AXES):

@@ -1,0 +1,32 @@
+import os
+
+import numpy as np
+import pytest
+
+import smpl_envs  # noqa: F401  (headless GL before mujoco)
+from smpl_envs.humanoid import NUM_BODIES
+from smpl_envs.motion import RawMotion
+from smpl_envs.rotations import quat_from_euler_xyz, yaw_quat
+
+
+@pytest.fixture(autouse=True)
+def _private_cache(tmp_path, monkeypatch):
+    """Every test gets its own MotionLib cache, so no test sees another's (or the user's)."""
+    monkeypatch.setenv("SMPL_ENVS_CACHE", str(tmp_path / "cache"))
+
+
+def sway_motion(fps: float = 120.0, seconds: float = 3.0, name: str = "sway") -> RawMotion:
+    """A smooth test motion at any frame rate: walking forward while turning, every hinge moving
+    with its own sine, so frame-rate and rotation bugs cannot hide."""
+    t = np.arange(int(round(seconds * fps)) + 1) / fps
+    phase = np.arange(NUM_BODIES * 3).reshape(NUM_BODIES, 3)
+    angles = 0.3 * np.sin(2 * np.pi * 0.7 * t[:, None, None] + phase)
+    quat = quat_from_euler_xyz(angles)
+    quat[:, 0] = yaw_quat(0.4 * t)  # pelvis: turning at 0.4 rad/s, otherwise upright
+    root = np.stack([1.2 * t, 0.1 * np.sin(t), 0.95 + 0.02 * np.sin(4 * t)], -1)
+    return RawMotion(name, fps, root, quat)
+
+
+@pytest.fixture
+def sway():
+    return sway_motion()

@@ -231,8 +231,7 @@ def test_saved_library_loads_back(tmp_path):
 def test_interpolation_between_frames():
     lib = MotionLib.load("run")
     ids = np.zeros(3, dtype=int)
-    a, b = lib.get_state(ids, np.array([10, 11, 10.5]) / 30).body_pos[[0, 1, 2]]
-    mid = lib.get_state(ids, np.array([10.5 / 30])).body_pos[0]
+    a, b, mid = lib.get_state(ids, np.array([10, 11, 10.5]) / 30).body_pos
     np.testing.assert_allclose(mid, (a + b) / 2, atol=1e-6)
     q = lib.get_state(ids, np.array([0.123, 1.5, 99.0])).body_quat
     np.testing.assert_allclose(np.linalg.norm(q, axis=-1), 1, atol=1e-6)
@@ -264,3 +263,23 @@ def test_random_yaw_turns_whole_clips_reproducibly():
     np.testing.assert_allclose(turned.body_pos, quat_apply(q, plain.body_pos), atol=1e-5)
     np.testing.assert_allclose(turned.dof_pos, plain.dof_pos)  # the pose itself is unchanged
     np.testing.assert_allclose(turned.body_lin_vel, quat_apply(q, plain.body_lin_vel), atol=1e-4)
+
+
+def test_deep_bends_decompose_into_the_bending_hinge(model):
+    """A knee bent 130 degrees is 130 degrees about its y hinge, not a 180-degree flip of x and z."""
+    from smpl_envs.humanoid import HINGE_NAMES
+    from smpl_envs.motion import RawMotion
+    from smpl_envs.rotations import quat_from_euler_xyz
+
+    t = np.linspace(0, 1, 31)
+    angles = np.zeros((31, 24, 3))
+    angles[:, 2, 1] = np.deg2rad(10 + 130 * t)   # L_Knee flexes past 90 degrees
+    angles[:, 1, 1] = -np.deg2rad(120 * t)       # L_Hip flexes past 90 degrees the other way
+    quat = quat_from_euler_xyz(angles)
+    raw = RawMotion("bend", 30.0, np.tile([0, 0, 1.0], (31, 1)), quat)
+    m = Motion.from_raw(raw)
+    knee_y, hip_y = HINGE_NAMES.index("L_Knee_y"), HINGE_NAMES.index("L_Hip_y")
+    np.testing.assert_allclose(m.dof_pos[:, knee_y], angles[:, 2, 1], atol=1e-9)
+    np.testing.assert_allclose(m.dof_pos[:, hip_y], angles[:, 1, 1], atol=1e-9)
+    assert np.abs(m.dof_pos[:, [knee_y - 1, knee_y + 1]]).max() < 1e-9
+    assert max_kinematic_error(model, m) < 1e-3

@@ -41,8 +41,18 @@ def lowest_point(body_pos: np.ndarray, body_quat: np.ndarray, skeleton: Skeleton
 
 
 def hinge_angles(local_quat: np.ndarray) -> np.ndarray:
-    """(..., 69) hinge angles whose x-y-z composition reproduces each non-root local rotation."""
-    return quat_to_euler_xyz(local_quat[..., 1:, :]).reshape(*local_quat.shape[:-2], -1)
+    """(..., 69) hinge angles whose x-y-z composition reproduces each non-root local rotation.
+
+    Every rotation has two x-y-z decompositions, (x, y, z) with |y| <= pi/2 and
+    (x + pi, pi - y, z + pi). A knee or hip bent past 90 degrees is the second one with small x
+    and z; the first would spin x and z by half a turn. Take whichever has the smaller |x| + |z|.
+    """
+    a = quat_to_euler_xyz(local_quat[..., 1:, :])
+    wrap = lambda v: (v + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
+    b = np.stack([wrap(a[..., 0] + np.pi), wrap(np.pi - a[..., 1]), wrap(a[..., 2] + np.pi)], -1)
+    cost = lambda e: np.abs(e[..., 0]) + np.abs(e[..., 2])  # noqa: E731
+    angles = np.where((cost(b) < cost(a))[..., None], b, a)
+    return angles.reshape(*local_quat.shape[:-2], -1)
 
 
 @dataclass(frozen=True)

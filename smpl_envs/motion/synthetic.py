@@ -1,0 +1,738 @@
+"""Procedural synthetic reference motions: the small clip library the project ships.
+
+AMASS cannot be redistributed, yet every demo and test needs motion, so these clips are made by
+code. Each clip is described the way one would direct an actor, then solved into joint rotations:
+
+* a pelvis trajectory (position and yaw / pitch / roll),
+* for each leg the world target of the ball of the foot (the toe joint) plus the foot's yaw and
+  pitch; a closed-form two-bone IK turns that into hip, knee, ankle and toe rotations, so a
+  planted foot is *exactly* still and its sole *exactly* on z = 0 (no sliding, no penetration),
+* for each arm the directions of upper arm and forearm in the chest frame (a "look-at" solve that
+  bends the elbow only about its flexion hinge),
+* spine, neck and head hinge angles.
+
+Physical sense is built in rather than checked afterwards: the pelvis height of a grounded clip is
+the highest that keeps the knees slightly bent (so the legs always reach the floor), airborne
+phases (run, jump) follow the ballistic parabola z'' = -g and join the stance phases with matching
+velocity, and the quasi-static clips (stand, gesture, crouch, kick) shift the pelvis so that the
+whole-body centre of mass stays over the support foot / feet.
+
+Every clip is deterministic (no randomness at all). Run `python -m smpl_envs.motion.synthetic
+[out_dir]` to rewrite the shipped clips; tests/test_synthetic_clips.py checks that regenerating
+reproduces them.
+
+Sign conventions of the body frames (x forward, y left, z up), measured with forward kinematics:
+hip flexion is a negative y rotation, knee flexion positive y, ankle plantar flexion (toes down)
+positive y; a positive pelvis pitch leans forward, a positive roll tilts to the right; the left
+elbow flexes about -z, the right about +z.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.interpolate import CubicHermiteSpline
+
+from ..humanoid.skeleton import MEAN_SKELETON, NUM_BODIES
+from ..rotations import (
+    quat_apply, quat_from_euler_xyz, quat_from_matrix, quat_from_rotvec, quat_inv, quat_mul,
+    quat_to_matrix, yaw_quat,
+)
+from .kinematics import forward_kinematics
+from .motion import FPS, RawMotion
+
+CLIP_NAMES: tuple[str, ...] = ("stand", "walk", "run", "turn", "jump", "kick", "gesture", "crouch")
+CLIPS_DIR = Path(__file__).resolve().parent / "clips"
+GRAVITY = 9.81
+DEG = np.pi / 180.0
+
+SKELETON = MEAN_SKELETON
+OFFSETS = SKELETON.offsets
+B = {name: i for i, name in enumerate((
+    "Pelvis", "L_Hip", "L_Knee", "L_Ankle", "L_Toe", "R_Hip", "R_Knee", "R_Ankle", "R_Toe",
+    "Torso", "Spine", "Chest", "Neck", "Head", "L_Thorax", "L_Shoulder", "L_Elbow", "L_Wrist",
+    "L_Hand", "R_Thorax", "R_Shoulder", "R_Elbow", "R_Wrist", "R_Hand"))}
+SIDES = {"L": 1.0, "R": -1.0}  # sign of the body's left axis for each side
+
+
+def _sole_depth(body: int) -> float:
+    """How far below its joint the lowest point of a body's geometry lies in the rest pose."""
+    points, radii = SKELETON.support_points()
+    return float(-(points[body, :, 2] - radii[body]).min())
+
+
+# Height of the toe joint above the floor when the toe box lies flat on it.
+BALL_HEIGHT = {s: _sole_depth(B[f"{s}_Toe"]) for s in SIDES}
+# Centre of the foot's support (between heel box and toe box centres) relative to the toe joint,
+# in the foot's rest frame: the point the centre of mass is balanced over.
+FOOT_CENTRE = {
+    s: 0.5 * (np.asarray(SKELETON.geoms[B[f"{s}_Ankle"]].pos) - OFFSETS[B[f"{s}_Toe"]]
+              + np.asarray(SKELETON.geoms[B[f"{s}_Toe"]].pos)) * np.array([1.0, 1.0, 0.0])
+    for s in SIDES
+}
+
+
+# ----------------------------------------------------------------------------- small helpers
+
+def _time(duration: float) -> np.ndarray:
+    return np.arange(int(round(duration * FPS)) + 1) / FPS
+
+
+def _minjerk(x):
+    """0 -> 1 with zero velocity and acceleration at both ends (the minimum-jerk profile)."""
+    x = np.clip(x, 0.0, 1.0)
+    return x ** 3 * (10.0 - 15.0 * x + 6.0 * x ** 2)
+
+
+def _keys(t, times, values):
+    """Piecewise minimum-jerk interpolation through keyframes (values may be (K,) or (K, D)):
+    every key is reached at rest, which is how deliberate postural movements look."""
+    t, times, values = np.asarray(t, float), np.asarray(times, float), np.asarray(values, float)
+    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+    s = _minjerk((t - times[i]) / (times[i + 1] - times[i]))
+    s = s.reshape(s.shape + (1,) * (values.ndim - 1))
+    return values[i] + s * (values[i + 1] - values[i])
+
+
+def _hermite(t, times, values, slopes):
+    """Cubic Hermite interpolation (C1), held constant outside the key range."""
+    spline = CubicHermiteSpline(times, values, slopes)
+    return spline(np.clip(t, times[0], times[-1]))
+
+
+def _axis_quat(axis: int, angle) -> np.ndarray:
+    angle = np.asarray(angle, float)
+    q = np.zeros(angle.shape + (4,))
+    q[..., 0] = np.cos(angle / 2)
+    q[..., 1 + axis] = np.sin(angle / 2)
+    return q
+
+
+def _normalize(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _frame(a, b):
+    """Rotation matrices (..., 3, 3) with columns (a, b orthogonalised against a, a x b)."""
+    a = _normalize(a)
+    b = _normalize(b - np.sum(a * b, -1, keepdims=True) * a)
+    return np.stack([a, b, np.cross(a, b)], -1)
+
+
+def _arm_dir(flex, abduct, side):
+    """Unit direction from hanging straight down: `flex` swings it forward in the sagittal plane,
+    `abduct` lifts it out sideways (to the body's left for side +1)."""
+    flex, abduct = np.broadcast_arrays(np.asarray(flex, float), np.asarray(abduct, float))
+    return np.stack([np.sin(flex) * np.cos(abduct), side * np.sin(abduct),
+                     -np.cos(flex) * np.cos(abduct)], -1)
+
+
+def _arm(t, side, flex, abduct, elbow, twist=0.0):
+    """Arm posture per frame: upper arm along _arm_dir(flex, abduct) in the chest frame, elbow
+    flexion `elbow`, and `twist` (external rotation of the upper arm, positive turns the forearm
+    from forward towards up for an arm held out sideways)."""
+    b = lambda v: np.broadcast_to(np.asarray(v, float), t.shape)
+    return _arm_dir(b(flex), b(abduct), SIDES[side]), b(elbow), b(twist)
+
+
+def _rot(yaw, pitch=0.0, roll=0.0):
+    """World orientation: yaw about z, then pitch about the turned y, then roll about x."""
+    yaw, pitch, roll = np.broadcast_arrays(*(np.asarray(a, float) for a in (yaw, pitch, roll)))
+    return quat_mul(quat_mul(yaw_quat(yaw), _axis_quat(1, pitch)), _axis_quat(0, roll))
+
+
+# ----------------------------------------------------------------------------- the clip description
+
+@dataclass
+class _Leg:
+    """Targets of one leg per frame. `ball` is the world position of the toe joint; the foot
+    (ankle body) has world orientation yaw(foot_yaw) * pitch(foot_pitch), positive pitch raising
+    the heel; `toe_flat` in [0, 1] keeps the toe segment level with the floor (1) or lets it follow
+    the foot (0)."""
+
+    ball: np.ndarray
+    foot_yaw: np.ndarray
+    foot_pitch: np.ndarray
+    toe_flat: np.ndarray
+    grounded: np.ndarray  # bool: the ball is on the floor this frame
+
+
+@dataclass
+class _Spec:
+    """Everything that defines a clip before it is solved into local rotations."""
+
+    t: np.ndarray
+    pelvis_pos: np.ndarray  # (T, 3)
+    pelvis_quat: np.ndarray  # (T, 4)
+    legs: dict[str, _Leg]
+    arms: dict[str, tuple]  # per side: upper-arm direction (chest frame), elbow flexion, twist
+    angles: np.ndarray = field(default=None)  # (T, 24, 3) hinge angles of the remaining bodies
+    # Knee bend below which a leg whose foot is in the air is not straightened: its foot target is
+    # pulled in smoothly instead (None: targets are always reached exactly).
+    swing_knee: float | None = None
+
+    def __post_init__(self):
+        if self.angles is None:
+            self.angles = np.zeros((len(self.t), NUM_BODIES, 3))
+
+
+def _foot_quat(leg: _Leg) -> np.ndarray:
+    return _rot(leg.foot_yaw, leg.foot_pitch)
+
+
+def _ankle_target(leg: _Leg, side: str) -> np.ndarray:
+    return leg.ball - quat_apply(_foot_quat(leg), OFFSETS[B[f"{side}_Toe"]])
+
+
+def _hip_pos(spec: _Spec, side: str) -> np.ndarray:
+    return spec.pelvis_pos + quat_apply(spec.pelvis_quat, OFFSETS[B[f"{side}_Hip"]])
+
+
+def _knee_terms(side: str):
+    """|a + Ry(k) b|^2 = c0 + 2 r cos(k - phi) for thigh a and shank b: the leg length as a
+    function of knee flexion k, which the IK inverts in closed form."""
+    a, b = OFFSETS[B[f"{side}_Knee"]], OFFSETS[B[f"{side}_Ankle"]]
+    c0 = a @ a + b @ b + 2 * a[1] * b[1]
+    p, q = a[0] * b[0] + a[2] * b[2], a[0] * b[2] - a[2] * b[0]
+    return a, b, c0, np.hypot(p, q), np.arctan2(q, p)
+
+
+def _leg_length(side: str, knee) -> np.ndarray:
+    _, _, c0, r, phi = _knee_terms(side)
+    return np.sqrt(c0 + 2 * r * np.cos(np.asarray(knee) - phi))
+
+
+MIN_KNEE = 4 * DEG  # the straightest knee the IK is asked for: a locked knee is a singularity
+
+
+def _max_pelvis_height(spec: _Spec, side: str, min_knee: float = MIN_KNEE) -> np.ndarray:
+    """Highest pelvis z per frame at which this leg still reaches its ankle target with the knee
+    bent at least `min_knee` (pelvis xy and orientation as in `spec`)."""
+    hip_off = quat_apply(spec.pelvis_quat, OFFSETS[B[f"{side}_Hip"]])
+    d = _ankle_target(spec.legs[side], side) - (spec.pelvis_pos * [1, 1, 0] + hip_off)
+    reach = _leg_length(side, min_knee)
+    return d[:, 2] + np.sqrt(np.maximum(reach ** 2 - d[:, 0] ** 2 - d[:, 1] ** 2, 0.0))
+
+
+def _solve_leg(spec: _Spec, side: str, local: np.ndarray) -> None:
+    """Closed-form IK: writes hip, knee, ankle and toe local rotations into `local`."""
+    leg = spec.legs[side]
+    hip, knee, ankle, toe = (B[f"{side}_{n}"] for n in ("Hip", "Knee", "Ankle", "Toe"))
+    a, b, c0, r, phi = _knee_terms(side)
+    d = _ankle_target(leg, side) - _hip_pos(spec, side)
+    if spec.swing_knee is not None:
+        # Soft-limit the reach of airborne feet (softplus, 1 cm wide) so a swing leg reaching
+        # for a far target bends less instead of locking straight and then snapping at landing.
+        dist = np.linalg.norm(d, axis=-1)
+        d_max = _leg_length(side, spec.swing_knee)
+        soft = d_max - 0.01 * np.logaddexp(0.0, (d_max - dist) / 0.01)
+        d = d * np.where(leg.grounded, 1.0, np.minimum(soft / dist, 1.0))[:, None]
+    dist2 = np.sum(d * d, -1)
+    cos_arg = np.clip((dist2 - c0) / (2 * r), -1.0, np.cos(0.0 - phi))  # never hyperextend
+    k = phi + np.arccos(cos_arg)
+    leg_rest = a + quat_apply(_axis_quat(1, k), b)  # hip -> ankle in the hip's rest frame
+    # The knee's hinge (hip-frame y) should point to the foot's left so the knee bends forwards.
+    knee_axis = quat_apply(yaw_quat(leg.foot_yaw), [0.0, 1.0, 0.0])
+    hip_world = _frame(d, knee_axis) @ np.swapaxes(_frame(leg_rest, np.array([0.0, 1.0, 0.0])), -1, -2)
+    pelvis_m = quat_to_matrix(spec.pelvis_quat)
+    local[:, hip] = quat_from_matrix(np.swapaxes(pelvis_m, -1, -2) @ hip_world)
+    local[:, knee] = _axis_quat(1, k)
+    shank_world = quat_mul(quat_from_matrix(hip_world), local[:, knee])
+    local[:, ankle] = quat_mul(quat_inv(shank_world), _foot_quat(leg))
+    local[:, toe] = _axis_quat(1, -leg.foot_pitch * leg.toe_flat)
+
+
+def _solve_arm(side: str, chest_q, thorax_q, upper, elbow, twist, local: np.ndarray) -> None:
+    """Shoulder and elbow rotations that point the upper arm along `upper` (chest frame) and bend
+    the elbow by `elbow` about its flexion hinge (z), the arm twisted by `twist`."""
+    s = SIDES[side]
+    sh, el, wr = (B[f"{side}_{n}"] for n in ("Shoulder", "Elbow", "Wrist"))
+    # The elbow's hinge axis where the arm hangs relaxed: the body's left for a hanging or
+    # forward arm, up for an arm held out sideways (T-pose), the body's right overhead; this
+    # blend of (forward x arm) and (left, orthogonal to the arm) never vanishes on those paths.
+    y_perp = np.array([0.0, 1.0, 0.0]) - upper[..., 1:2] * upper
+    axis = s * (np.cross([1.0, 0.0, 0.0], upper) + 0.5 * y_perp)
+    axis = quat_apply(quat_from_rotvec(-s * twist[:, None] * upper), _normalize(axis))
+    # The left elbow flexes about -z, the right about +z (measured with forward kinematics).
+    fore = quat_apply(quat_from_rotvec(-s * elbow[:, None] * axis), upper)
+    u, f, axis = (quat_apply(chest_q, v) for v in (upper, fore, axis))
+    shoulder_world = _frame(u, axis) @ np.swapaxes(
+        _frame(np.broadcast_to(OFFSETS[el], u.shape), np.array([0.0, 0.0, 1.0])), -1, -2)
+    local[:, sh] = quat_from_matrix(np.swapaxes(quat_to_matrix(thorax_q), -1, -2) @ shoulder_world)
+    f_sh = np.einsum("tji,tj->ti", shoulder_world, f)  # forearm direction in the shoulder frame
+    w = OFFSETS[wr]
+    gamma = np.arctan2(f_sh[:, 1], f_sh[:, 0]) - np.arctan2(w[1], w[0])
+    local[:, el] = _axis_quat(2, (gamma + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _solve(spec: _Spec) -> np.ndarray:
+    """Local rotations (T, 24, 4) realising the spec."""
+    local = quat_from_euler_xyz(spec.angles)
+    local[:, 0] = spec.pelvis_quat
+    for side in SIDES:
+        _solve_leg(spec, side, local)
+    _, body_quat = forward_kinematics(spec.pelvis_pos, local, OFFSETS)
+    for side in SIDES:
+        _solve_arm(side, body_quat[:, B["Chest"]], body_quat[:, B[f"{side}_Thorax"]], *spec.arms[side], local)
+    return local
+
+
+def _centre_of_mass(root_pos, local) -> np.ndarray:
+    pos, quat = forward_kinematics(root_pos, local, OFFSETS)
+    centres = []
+    for g in SKELETON.geoms:
+        centres.append(np.reshape(g.fromto, (2, 3)).mean(0) if g.kind == "capsule" else np.asarray(g.pos))
+    world = pos + quat_apply(quat, np.array(centres))
+    masses = np.array([g.mass for g in SKELETON.geoms])
+    return np.einsum("tbi,b->ti", world, masses) / masses.sum()
+
+
+def _support_point(spec: _Spec, weight_left) -> np.ndarray:
+    """Floor point under the feet, blended between the foot centres by `weight_left`."""
+    pts = {s: spec.legs[s].ball + quat_apply(yaw_quat(spec.legs[s].foot_yaw), FOOT_CENTRE[s])
+           for s in SIDES}
+    w = np.asarray(weight_left, float)[..., None]
+    return w * pts["L"] + (1 - w) * pts["R"]
+
+
+def _smooth_below(z: np.ndarray, radius: int = 2, sigma: float = 0.8) -> np.ndarray:
+    """A smooth curve that never exceeds z: a running minimum over +-radius frames, then a
+    Gaussian truncated at the same radius (each average only mixes values below z there)."""
+    pad = np.pad(z, radius, mode="edge")
+    window = np.lib.stride_tricks.sliding_window_view(pad, 2 * radius + 1)
+    taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
+    eroded = np.pad(window.min(-1), radius, mode="edge")
+    return np.lib.stride_tricks.sliding_window_view(eroded, 2 * radius + 1) @ (taps / taps.sum())
+
+
+def _fit_height(spec: _Spec, drop) -> None:
+    """Pelvis as high as both legs allow, lowered by `drop` (>= 0, per frame): the legs are then
+    guaranteed to reach their targets with bent knees."""
+    zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
+    spec.pelvis_pos[:, 2] = zmax - drop
+
+
+def _balanced(spec: _Spec, weight_left, drop, iterations: int = 4) -> np.ndarray:
+    """Shift the pelvis horizontally until the centre of mass is over the support point (the
+    static-balance condition a slow motion has to meet), refitting the height each time."""
+    target = _support_point(spec, weight_left)[:, :2]
+    for _ in range(iterations):
+        _fit_height(spec, drop)
+        local = _solve(spec)
+        com = _centre_of_mass(spec.pelvis_pos, local)
+        spec.pelvis_pos[:, :2] += target - com[:, :2]
+    _fit_height(spec, drop)
+    return _solve(spec)
+
+
+def _upright_spine(t, pelvis_pitch, pelvis_roll=0.0, pelvis_yaw=0.0, lean=0.0, twist=0.0):
+    """Hinge angles (T, 24, 3) of torso, spine, chest, neck and head that give the chest a world
+    lean `lean` (forward positive) and yaw `twist` relative to the heading, and keep the head level
+    and looking along the heading."""
+    angles = np.zeros((len(t), NUM_BODIES, 3))
+    pitch = np.broadcast_to(lean - np.asarray(pelvis_pitch), t.shape)
+    roll = np.broadcast_to(-np.asarray(pelvis_roll), t.shape)
+    yaw = np.broadcast_to(twist - np.asarray(pelvis_yaw), t.shape)
+    for body, share in (("Torso", 0.4), ("Spine", 0.35), ("Chest", 0.25)):
+        angles[:, B[body]] = np.stack([share * roll, share * pitch, share * yaw], -1)
+    for body, share in (("Neck", 0.6), ("Head", 0.4)):
+        angles[:, B[body]] = np.stack([0 * t, -share * np.broadcast_to(lean, t.shape),
+                                       -share * np.broadcast_to(twist, t.shape)], -1)
+    return angles
+
+
+def _relaxed_arms(t, flex=0.0, abduct=10 * DEG, elbow=15 * DEG):
+    """Arms hanging at the sides with a natural elbow bend."""
+    return {side: _arm(t, side, flex, abduct, elbow) for side in SIDES}
+
+
+def _standing_legs(t, width=0.1, toe_out=6 * DEG, x=0.0) -> dict[str, _Leg]:
+    """Both feet flat and still, the toe joints `width` either side of the centre line."""
+    legs = {}
+    for side, s in SIDES.items():
+        ball = np.tile([x + OFFSETS[B[f"{side}_Toe"]][0] - 0.05, s * width, BALL_HEIGHT[side]], (len(t), 1))
+        legs[side] = _Leg(ball, np.full(len(t), s * toe_out), np.zeros(len(t)), np.ones(len(t)),
+                          np.ones(len(t), bool))
+    return legs
+
+
+def _raw(name: str, spec: _Spec, local: np.ndarray) -> RawMotion:
+    return RawMotion(name, FPS, spec.pelvis_pos.copy(), local, source="smpl_envs.motion.synthetic")
+
+
+# ----------------------------------------------------------------------------- locomotion
+
+@dataclass
+class _Gait:
+    stride: float  # s, one full cycle (two steps)
+    duty: float  # fraction of the stride a foot is on the ground
+    width: float  # lateral distance of each toe joint from the path
+    ball_ahead: float  # toe joint ahead of the pelvis at mid-stance
+    swing_height: float  # lift of the toe joint in swing
+    swing_peak: float  # when in the swing the lift peaks (0..1)
+    foot_pitch_keys: tuple  # (phase, pitch) keys over the stride, phase 0 = touchdown
+    toe_release: float  # phase after lift-off by which the toe stops being held level
+    pelvis_pitch: float
+    lean: float  # chest lean
+    yaw_swing: float  # pelvis rotation amplitude
+    roll_swing: float
+    sway: float  # lateral pelvis shift toward the stance foot
+    arm_swing: float
+    arm_flex: float
+    elbow: float
+    elbow_swing: float
+    flight: bool
+    liftoff_speed: float  # vertical speed of the toe joint as it leaves the floor (m/s)
+    landing_speed: float  # vertical speed of the foot at touchdown (m/s)
+    swing_land: float  # fraction of the swing after which the foot only descends
+    landing_height: float  # height of the toe joint above its footstep at that moment
+    bob: float = 0.0  # walk: amplitude of the pelvis' vertical oscillation
+    stance_knee: float = MIN_KNEE  # run: the straightest knee on the ground (at touchdown)
+
+
+def _path(t_fine, speed, yaw_rate):
+    """Integrate heading and position on a fine grid (xy (N, 2), heading (N,))."""
+    dt = t_fine[1] - t_fine[0]
+    yaw = np.concatenate([[0.0], np.cumsum(0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * dt)])
+    vel = speed[:, None] * np.stack([np.cos(yaw), np.sin(yaw)], -1)
+    xy = np.concatenate([[[0.0, 0.0]], np.cumsum(0.5 * (vel[1:] + vel[:-1]) * dt, 0)])
+    return xy, yaw
+
+
+def _locomotion(name, duration, gait: _Gait, speed: float, yaw_rate=lambda t: 0 * t) -> RawMotion:
+    t = _time(duration)
+    n = len(t)
+    # Path on a fine grid reaching a stride beyond both ends so every footstep is defined.
+    t_fine = np.arange(-2 * gait.stride, duration + 2 * gait.stride, 1e-3)
+    xy_fine, yaw_fine = _path(t_fine, np.full(len(t_fine), speed), yaw_rate(t_fine))
+    i0 = np.searchsorted(t_fine, 0.0)
+    xy_fine, yaw_fine = xy_fine - xy_fine[i0], yaw_fine - yaw_fine[i0]  # start at the origin
+    at = lambda tq: (np.stack([np.interp(tq, t_fine, xy_fine[:, 0]), np.interp(tq, t_fine, xy_fine[:, 1])], -1),
+                     np.interp(tq, t_fine, yaw_fine))
+    path_xy, heading = at(t)
+    stance = gait.duty * gait.stride
+    first_td = {"L": 0.1 * gait.stride, "R": 0.6 * gait.stride}  # begin mid-gait
+    legs, phase_of = {}, {}
+    for side, s in SIDES.items():
+        k = np.floor((t - first_td[side]) / gait.stride)  # index of the last touchdown
+        td = first_td[side] + k * gait.stride
+        phase = (t - td) / gait.stride
+        phase_of[side] = phase
+        # Footsteps: the toe joint `ball_ahead` in front of the pelvis and `width` to the side at
+        # the middle of the stance, turned with the heading of that moment.
+        def step(kk):
+            mid = first_td[side] + kk * gait.stride + 0.5 * stance
+            p_xy, yaw = at(mid)
+            off = np.stack([gait.ball_ahead * np.cos(yaw) - s * gait.width * np.sin(yaw),
+                            gait.ball_ahead * np.sin(yaw) + s * gait.width * np.cos(yaw)], -1)
+            return p_xy + off, yaw + s * 5 * DEG
+        (xy0, yaw0), (xy1, yaw1) = step(k), step(k + 1)
+        swing = np.clip((phase * gait.stride - stance) / (gait.stride - stance), 0.0, 1.0)
+        # Horizontal travel is over by `swing_land` of the swing: the foot then comes straight
+        # down, so it never brushes the floor while moving.
+        arrive = np.clip(swing / gait.swing_land, 0.0, 1.0)
+        sw = (arrive * arrive * (3 - 2 * arrive))[:, None]
+        ball = np.zeros((n, 3))
+        ball[:, :2] = xy0 + sw * (xy1 - xy0)
+        # The foot is still a few cm up when it is over its footstep and comes down with some
+        # speed (as feet do): a foot that arrived at rest would hover just above the floor, far
+        # in front of the hips, for the whole approach, and the legs could not reach it.
+        t_sw = gait.stride - stance
+        ball[:, 2] = BALL_HEIGHT[side] + _hermite(
+            swing, [0, gait.swing_peak, gait.swing_land, 1],
+            [0, gait.swing_height, gait.landing_height, 0],
+            [gait.liftoff_speed * t_sw, 0, -gait.landing_speed * t_sw, -gait.landing_speed * t_sw])
+        kp, kv = np.array(gait.foot_pitch_keys).T
+        pitch = _keys(phase, kp, kv)
+        release = np.clip((phase - gait.duty) / gait.toe_release, 0, 1)
+        regrip = np.clip((phase - 0.9) / 0.1, 0, 1)
+        toe_flat = 1 - _minjerk(release) + _minjerk(regrip)
+        legs[side] = _Leg(ball, yaw0 + sw[:, 0] * (yaw1 - yaw0), pitch, toe_flat, phase < gait.duty)
+
+    # Pelvis: rotates with the forward leg, sways and rolls over the stance foot.
+    cyc = 2 * np.pi * (t - first_td["L"]) / gait.stride  # 0 at left touchdown
+    mid_cyc = cyc - np.pi * gait.duty  # 0 at left mid-stance
+    yaw_osc = -gait.yaw_swing * np.cos(cyc)  # left hip forward (negative yaw) at left touchdown
+    roll = gait.roll_swing * np.cos(mid_cyc)  # swing side (right) drops during left stance
+    lean_in = -np.arctan(speed * yaw_rate(t) / GRAVITY)  # bank into the curve
+    sway = gait.sway * np.cos(mid_cyc)
+    pos = np.zeros((n, 3))
+    pos[:, :2] = path_xy + sway[:, None] * np.stack([-np.sin(heading), np.cos(heading)], -1)
+    quat = _rot(heading + yaw_osc, gait.pelvis_pitch, roll + lean_in)
+    angles = _upright_spine(t, gait.pelvis_pitch, roll + lean_in, yaw_osc, gait.lean, -0.5 * yaw_osc)
+    arms = {}
+    for side, s in SIDES.items():
+        # Each arm swings with the opposite leg: back when its own leg is forward.
+        swing_fwd = -np.cos(2 * np.pi * phase_of[side])
+        flex = gait.arm_flex + gait.arm_swing * swing_fwd
+        elbow = gait.elbow + gait.elbow_swing * 0.5 * (1 + swing_fwd)
+        arms[side] = _arm(t, side, flex, 10 * DEG, elbow)
+    spec = _Spec(t, pos, quat, legs, arms, angles)
+
+    # Every frame bounds the height, swing included: a leg that could not reach its target would
+    # snap straight and bend again around touchdown.
+    if gait.flight:
+        spec.swing_knee = 8 * DEG
+        zmax = np.minimum(*(np.where(legs[s].grounded, _max_pelvis_height(spec, s, gait.stance_knee), np.inf)
+                            for s in SIDES))
+    else:
+        zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
+    if gait.flight:
+        # Spring-mass stance joined C1 to ballistic flights: flight lasts t_f, leaves and lands at
+        # vertical speed v = g t_f / 2; a half sine in stance reverses that velocity.
+        t_f = gait.stride / 2 - stance
+        v = GRAVITY * t_f / 2
+        tau = np.mod(t - first_td["L"], gait.stride / 2)  # time since the last touchdown
+        shape = np.where(tau < stance, -(v * stance / np.pi) * np.sin(np.pi * tau / stance),
+                         v * (tau - stance) - 0.5 * GRAVITY * (tau - stance) ** 2)
+        # Only stance frames bound the height here: in the air a swing foot that the leg cannot
+        # quite reach just stays a little higher.
+        grounded = legs["L"].grounded | legs["R"].grounded
+        spec.pelvis_pos[:, 2] = np.min((zmax - shape)[grounded]) - 0.002 + shape
+    else:
+        # Walking: the pelvis vaults over each stance leg like an inverted pendulum (highest at
+        # mid-stance), as high as the legs allow.
+        shape = gait.bob * np.cos(2 * mid_cyc)
+        spec.pelvis_pos[:, 2] = np.min(zmax - shape) - 0.002 + shape
+    return _raw(name, spec, _solve(spec))
+
+
+WALK = _Gait(
+    stride=1.0, duty=0.61, width=0.075, ball_ahead=0.0, swing_height=0.07, swing_peak=0.35,
+    foot_pitch_keys=((0, 0), (0.25, 0), (0.61, 50 * DEG), (0.72, 20 * DEG), (0.88, -5 * DEG), (1, 0)),
+    toe_release=0.2, pelvis_pitch=6 * DEG, lean=3 * DEG, yaw_swing=5 * DEG, roll_swing=3 * DEG,
+    sway=0.02, arm_swing=17 * DEG, arm_flex=3 * DEG, elbow=18 * DEG, elbow_swing=12 * DEG,
+    flight=False, liftoff_speed=0.3, landing_speed=0.5, swing_land=0.85, landing_height=0.045, bob=0.03,
+)
+RUN = _Gait(
+    stride=0.64, duty=0.28, width=0.05, ball_ahead=0.12, swing_height=0.10, swing_peak=0.4,
+    foot_pitch_keys=((0, 0), (0.1, 0), (0.28, 30 * DEG), (0.4, 35 * DEG), (0.7, 0),
+                     (0.88, -10 * DEG), (1, 0)),
+    toe_release=0.12, pelvis_pitch=9 * DEG, lean=10 * DEG, yaw_swing=6 * DEG, roll_swing=3 * DEG,
+    sway=0.01, arm_swing=32 * DEG, arm_flex=8 * DEG, elbow=80 * DEG, elbow_swing=15 * DEG,
+    flight=True, stance_knee=12 * DEG, liftoff_speed=0.8, landing_speed=0.6, swing_land=0.85,
+    landing_height=0.09,
+)
+
+
+def _walk() -> RawMotion:
+    return _locomotion("walk", 6.0, WALK, speed=1.3)
+
+
+def _run() -> RawMotion:
+    return _locomotion("run", 4.0, RUN, speed=3.0)
+
+
+def _turn() -> RawMotion:
+    # Straight, then a smooth left turn of 200 degrees on a ~1.2 m radius, then straight again.
+    speed, duration = 1.1, 8.0
+    total, t0, t1, ramp = 200 * DEG, 1.2, 6.6, 0.6
+
+    def yaw_rate(t):
+        on = _minjerk((t - t0) / ramp) * (1 - _minjerk((t - (t1 - ramp)) / ramp))
+        return on * total / (t1 - t0 - ramp)
+
+    gait = _Gait(**{**WALK.__dict__, "stride": 1.1, "swing_height": 0.055})
+    return _locomotion("turn", duration, gait, speed=speed, yaw_rate=yaw_rate)
+
+
+# ----------------------------------------------------------------------------- quasi-static clips
+
+def _stand() -> RawMotion:
+    t = _time(6.0)
+    legs = _standing_legs(t)
+    # Postural sway (~1 cm, incommensurate slow sines) and breathing (~0.25 Hz chest pitch).
+    sway = 0.5 + 0.05 * np.sin(2 * np.pi * 0.21 * t)  # weight on the left foot
+    breath = 1.2 * DEG * np.sin(2 * np.pi * 0.27 * t)
+    angles = _upright_spine(t, 4 * DEG, lean=1 * DEG + breath)
+    angles[:, B["Neck"], 2] = 4 * DEG * np.sin(2 * np.pi * 0.09 * t + 1.0)  # glance around
+    spec = _Spec(t, np.zeros((len(t), 3)), _rot(0 * t, 4 * DEG), legs,
+                 _relaxed_arms(t, flex=2 * DEG + 0.6 * breath, elbow=14 * DEG), angles)
+    local = _balanced(spec, sway + 0.02 * np.sin(2 * np.pi * 0.53 * t + 0.7),
+                      drop=0.003 + 0.002 * (1 + np.sin(2 * np.pi * 0.13 * t)))
+    return _raw("stand", spec, local)
+
+
+def _gesture() -> RawMotion:
+    t = _time(8.0)
+    legs = _standing_legs(t)
+    angles = _upright_spine(t, 4 * DEG, lean=1 * DEG)
+    # Right arm: raise out to the side, wave three times, lower. Then both arms up overhead
+    # through the sides and down again. Keys: (upper-arm flex, abduction, elbow, twist) degrees.
+    rk = [0.0, 0.5, 1.3, 3.7, 4.3, 5.2, 6.2, 7.2, 8.0]
+    rest, wave, up = (2, 10, 15, 0), (10, 95, 85, 50), (0, 165, 15, 0)
+    r_keys = [rest, rest, wave, wave, rest, rest, up, rest, rest]
+    l_keys = [rest, rest, rest, rest, rest, rest, up, rest, rest]
+    r, l = (np.deg2rad(_keys(t, rk, k)) for k in (r_keys, l_keys))
+    # The wave: the forearm swings towards and away from the head while the arm is raised.
+    waving = _minjerk((t - 1.4) / 0.3) * (1 - _minjerk((t - 3.4) / 0.3))
+    r[:, 2] += 25 * DEG * waving * np.sin(2 * np.pi * 1.5 * (t - 1.4))
+    arms = {"L": _arm(t, "L", *l.T), "R": _arm(t, "R", *r.T)}
+    # Look at the waving hand a little, and up when both arms are overhead.
+    angles[:, B["Neck"], 2] -= 12 * DEG * _keys(t, rk, [0, 0, 1, 1, 0, 0, 0, 0, 0])
+    angles[:, B["Head"], 1] -= 12 * DEG * _keys(t, rk, [0, 0, 0, 0, 0, 0, 1, 0, 0])
+    spec = _Spec(t, np.zeros((len(t), 3)), _rot(0 * t, 4 * DEG), legs, arms, angles)
+    return _raw("gesture", spec, _balanced(spec, 0.5, drop=0.004))
+
+
+def _crouch() -> RawMotion:
+    t = _time(5.0)
+    legs = _standing_legs(t, width=0.12, toe_out=12 * DEG)
+    keys = [0.0, 0.6, 1.9, 2.5, 3.9, 5.0]
+    depth = _keys(t, keys, [0, 0, 1, 1, 0, 0])  # 0 standing .. 1 bottom of the squat
+    pelvis_pitch = 4 * DEG + 20 * DEG * depth
+    lean = 1 * DEG + 30 * DEG * depth
+    angles = _upright_spine(t, pelvis_pitch, lean=lean)
+    angles[:, B["Neck"], 1] += 15 * DEG * depth  # keep looking ahead, not at the ceiling
+    # Arms come forward to shoulder height as a counterweight (world flex minus chest lean).
+    flex = 3 * DEG + 80 * DEG * depth
+    arms = {side: _arm(t, side, flex - lean, 10 * DEG, 15 * DEG) for side in SIDES}
+    spec = _Spec(t, np.zeros((len(t), 3)), _rot(0 * t, pelvis_pitch), legs, arms, angles)
+    # Squat depth: 0.21 m of pelvis drop (knees ~85 deg); balance keeps the centre of mass over
+    # the middle of the feet.
+    return _raw("crouch", spec, _balanced(spec, 0.5, drop=0.008 + 0.21 * depth))
+
+
+def _kick() -> RawMotion:
+    t = _time(4.0)
+    legs = _standing_legs(t)
+    # Timeline: weight onto the left foot, chamber the right knee, snap the kick, re-chamber,
+    # put the foot back, weight back to both feet.
+    keys = [0.0, 0.5, 1.1, 1.45, 1.7, 2.0, 2.45, 3.1, 4.0]
+    weight_left = _keys(t, keys, [0.5, 0.5, 0.97, 0.97, 0.97, 0.97, 0.97, 0.5, 0.5])
+    # Kicking foot, toe-joint target relative to the standing position (forward, up).
+    fwd = _keys(t, keys, [0, 0, 0, 0.30, 0.70, 0.30, 0.0, 0.0, 0.0])
+    up = _keys(t, keys, [0, 0, 0, 0.24, 0.50, 0.24, 0.0, 0.0, 0.0])
+    # Foot world pitch: toes pointed down under the chambered knee; at full extension the shank is
+    # nearly horizontal and the ankle extended, so the sole faces forward (ball-of-foot strike).
+    pitch = _keys(t, keys, np.deg2rad([0, 0, 0, 20, -40, 20, 0, 0, 0]))
+    r = legs["R"]
+    r.ball = r.ball + np.stack([fwd, 0 * t, up], -1)
+    r.foot_pitch = pitch
+    r.toe_flat = 1 - _minjerk(up / 0.05)  # toes relax once the foot is off the floor
+    r.grounded = up < 1e-4
+    lean_back = _keys(t, keys, np.deg2rad([0, 0, 0, -6, -14, -6, 0, 0, 0]))
+    pelvis_pitch = 4 * DEG + lean_back
+    angles = _upright_spine(t, pelvis_pitch, lean=1 * DEG + 0.6 * lean_back)
+    # Arms: raised guard that counter-swings, the left arm forward and the right back at impact.
+    guard = _keys(t, keys, [0, 0, 0.6, 1, 1, 1, 0.6, 0, 0])
+    snap = _keys(t, keys, [0, 0, 0, 0.3, 1, 0.3, 0, 0, 0])
+    arms = {"L": _arm(t, "L", (5 + 25 * guard + 20 * snap) * DEG, (12 + 20 * guard) * DEG,
+                      (15 + 75 * guard) * DEG),
+            "R": _arm(t, "R", (5 + 15 * guard - 40 * snap) * DEG, (12 + 25 * guard) * DEG,
+                      (15 + 70 * guard - 30 * snap) * DEG)}
+    spec = _Spec(t, np.zeros((len(t), 3)), _rot(0 * t, pelvis_pitch), legs, arms, angles)
+    # Only the standing leg limits the height once the kicking foot is off the floor.
+    target = _support_point(spec, weight_left)[:, :2]
+    for _ in range(5):
+        zl, zr = _max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R")
+        spec.pelvis_pos[:, 2] = np.where(r.grounded, np.minimum(zl, zr), zl) - 0.02
+        local = _solve(spec)
+        spec.pelvis_pos[:, :2] += target - _centre_of_mass(spec.pelvis_pos, local)[:, :2]
+    # Smooth the switch of height limit at lift-off (tiny, but keeps the velocity continuous).
+    zl, zr = _max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R")
+    z = np.where(r.grounded, np.minimum(zl, zr), zl) - 0.02
+    spec.pelvis_pos[:, 2] = np.minimum(np.convolve(np.pad(z, 3, mode="edge"), np.ones(7) / 7, "valid"),
+                                       np.minimum(zl, np.where(r.grounded, zr, np.inf)) - 0.005)
+    return _raw("kick", spec, _solve(spec))
+
+
+# ----------------------------------------------------------------------------- jump
+
+def _jump() -> RawMotion:
+    """Countermovement jump 0.3 m forward: dip, drive up onto the balls of the feet, a ballistic
+    flight with slightly tucked legs, land on the balls, absorb, stand up."""
+    t = _time(3.6)
+    n = len(t)
+    legs = _standing_legs(t)
+    # Take-off and landing fall on frames, so both stance poses are sampled exactly.
+    t_dip, t_bottom, t_off = 0.5, 1.05, 1.4
+    flight, dist, heel = 0.4, 0.30, 32 * DEG
+    t_land = t_off + flight
+    vz = GRAVITY * flight / 2  # take-off and landing at the same height
+    vx = dist / flight
+
+    # Feet: heels rise before take-off and drop after landing; in the air the balls follow the
+    # pelvis with the legs tucked a little; the second stance is `dist` ahead.
+    pitch = _keys(t, [0, 1.15, t_off, t_land, t_land + 0.12, 3.6], [0, 0, heel, heel, 0, 0])
+    air = (t > t_off + 1e-6) & (t < t_land - 1e-6)
+    forward = np.clip((t - t_off) / flight, 0, 1) * dist
+    for leg in legs.values():
+        leg.foot_pitch = pitch
+        leg.grounded = ~air
+
+    # Pelvis x: back during the dip (hips sit back), then forward at vx through the flight.
+    x = _hermite(t, [0, t_dip, t_bottom, t_off, t_land, t_land + 0.35, 3.0, 3.6],
+                 [0, 0, -0.08, -0.02, -0.02 + dist, dist - 0.06, dist, dist],
+                 [0, 0, 0, vx, vx, 0, 0, 0])
+    pelvis_pitch = 4 * DEG + _hermite(t, [0, t_dip, t_bottom, t_off, t_land, t_land + 0.3, 3.1, 3.6],
+                                      np.deg2rad([0, 0, 18, 5, 8, 15, 0, 0]), [0] * 8)
+    lean = 1 * DEG + _hermite(t, [0, t_dip, t_bottom, t_off, t_land, t_land + 0.3, 3.1, 3.6],
+                              np.deg2rad([0, 0, 32, 4, 8, 24, 0, 0]), [0] * 8)
+    pos = np.zeros((n, 3))
+    pos[:, 0] = x
+    spec = _Spec(t, pos, _rot(0 * t, pelvis_pitch), legs, {}, _upright_spine(t, pelvis_pitch, lean=lean))
+    # Arms swing back in the dip and up through take-off, forward for the landing.
+    flex = np.deg2rad(_hermite(t, [0, t_dip, t_bottom, t_off, t_land, t_land + 0.3, 3.1, 3.6],
+                               [3, 3, -45, 110, 60, 40, 3, 3], [0] * 8)) - lean
+    spec.arms = {side: _arm(t, side, flex, 12 * DEG, 25 * DEG) for side in SIDES}
+
+    # Where the legs allow the pelvis at take-off (heels up, knees nearly straight); the landing
+    # pose mirrors it, so take-off and landing heights are equal and the flight is symmetric.
+    for leg in legs.values():
+        leg.ball = leg.ball + np.stack([forward, 0 * t, 0 * t], -1)
+    zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
+    i_off, i_land = int(round(t_off * FPS)), int(round(t_land * FPS))
+    z_off = min(zmax[i_off], zmax[min(i_land, n - 1)]) - 0.01
+    z_stand = np.min(zmax[: int(t_dip * FPS)]) - 0.005
+    z = _hermite(t, [0, t_dip, t_bottom, t_off], [z_stand, z_stand, z_stand - 0.2, z_off], [0, 0, 0, vz])
+    tau = t - t_off
+    z = np.where(t > t_off + 1e-6, z_off + vz * tau - 0.5 * GRAVITY * tau ** 2, z)
+    z_after = _hermite(t, [t_land, t_land + 0.3, 3.1, 3.6],
+                       [z_off, z_stand - 0.15, z_stand, z_stand], [-vz, 0, 0, 0])
+    z = np.where(t >= t_land - 1e-6, z_after, z)
+    spec.pelvis_pos[:, 2] = z
+    # In the air the balls hang below the hips, the legs tucked by up to 12 cm at the apex.
+    rel = {s: legs[s].ball[i_off] - [x[i_off], 0.0, z_off] for s in SIDES}
+    tuck = 0.12 * np.sin(np.pi * np.clip(tau / flight, 0, 1)) ** 2
+    for side, leg in legs.items():
+        in_air = spec.pelvis_pos + rel[side] + np.stack([0 * t, 0 * t, tuck], -1)
+        leg.ball = np.where(air[:, None], in_air, leg.ball)
+    # Never ask a leg for more than it reaches (grounded frames only; the flight is fixed).
+    zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
+    spec.pelvis_pos[:, 2] = np.where(air, z, np.minimum(z, zmax - 0.005))
+    return _raw("jump", spec, _solve(spec))
+
+
+_GENERATORS = {
+    "stand": _stand, "walk": _walk, "run": _run, "turn": _turn, "jump": _jump, "kick": _kick,
+    "gesture": _gesture, "crouch": _crouch,
+}
+
+
+def generate(name: str) -> RawMotion:
+    """The synthetic clip `name` (one of CLIP_NAMES) at 30 fps, pelvis position and local
+    rotations in the humanoid's body frames, feet on the floor z = 0."""
+    if name not in _GENERATORS:
+        raise KeyError(f"unknown synthetic clip {name!r}; choose from {CLIP_NAMES}")
+    return _GENERATORS[name]()
+
+
+def generate_all(out_dir: str | Path = CLIPS_DIR) -> list[Path]:
+    """Write every clip as `<out_dir>/<name>.npz` (RawMotion.save); returns the paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name in CLIP_NAMES:
+        path = out_dir / f"{name}.npz"
+        generate(name).save(path)
+        paths.append(path)
+    return paths
+
+
+if __name__ == "__main__":
+    for p in generate_all(sys.argv[1] if len(sys.argv) > 1 else CLIPS_DIR):
+        print(p)

@@ -8,7 +8,7 @@ orientations, velocities, hinge angles, MuJoCo qpos / qvel) is derived from that
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -115,10 +115,6 @@ def derive_fields(
     )
 
 
-FIELDS = ("local_quat", "body_pos", "body_quat", "body_lin_vel", "body_ang_vel", "dof_pos",
-          "dof_vel", "qpos", "qvel")
-
-
 @dataclass
 class Motion:
     """One reference clip at 30 fps, every array in BODY_NAMES / HINGE_NAMES order, world frame.
@@ -142,7 +138,6 @@ class Motion:
     betas: np.ndarray | None = None
     gender: str = "neutral"
     source: str = ""
-    meta: dict = field(default_factory=dict)
 
     @property
     def num_frames(self) -> int:

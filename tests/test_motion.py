@@ -283,3 +283,19 @@ def test_deep_bends_decompose_into_the_bending_hinge(model):
     np.testing.assert_allclose(m.dof_pos[:, hip_y], angles[:, 1, 1], atol=1e-9)
     assert np.abs(m.dof_pos[:, [knee_y - 1, knee_y + 1]]).max() < 1e-9
     assert max_kinematic_error(model, m) < 1e-3
+
+
+def test_motion_retargets_exactly_to_a_user_body(tmp_path):
+    """With the user's SMPL file and betas, the reference is computed for that body's bones."""
+    from synthetic_smpl import write_synthetic_smpl
+    from smpl_envs.humanoid.smpl_model import skeleton_from_smpl
+
+    write_synthetic_smpl(tmp_path / "SMPL_NEUTRAL.npz")
+    betas = np.array([1.5, 0.0, 0.5])
+    body = build_humanoid(betas=betas, smpl_model_path=tmp_path / "SMPL_NEUTRAL.npz")
+    motion = load_motion("kick", skeleton=skeleton_from_smpl(tmp_path, betas=betas))
+    assert max_kinematic_error(body, motion) < 1e-3
+    mean = load_motion("kick")
+    assert np.abs(motion.body_pos - mean.body_pos).max() > 0.02  # a taller body, other positions
+    assert lowest_point(motion.body_pos, motion.body_quat,
+                        skeleton_from_smpl(tmp_path, betas=betas)).min() == pytest.approx(0, abs=1e-9)

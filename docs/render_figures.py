@@ -7,7 +7,6 @@ from pathlib import Path
 
 import smpl_envs  # noqa: F401  (headless GL before mujoco)
 import mujoco
-import numpy as np
 
 from smpl_envs.humanoid import build_humanoid
 from smpl_envs.motion import load_motion

@@ -1,4 +1,3 @@
-import warnings
 
 import joblib
 import mujoco
@@ -10,11 +9,10 @@ from smpl_envs.humanoid import build_humanoid
 from smpl_envs.motion import (
     Motion, MotionFileError, MotionLib, available_clips, load_motion, read_motion_file,
 )
-from smpl_envs.motion import loaders
 from smpl_envs.motion.export import to_amass, to_phc_pkl
 from smpl_envs.motion.kinematics import lowest_point
 from smpl_envs.humanoid.skeleton import MEAN_SKELETON
-from smpl_envs.rotations import quat_apply, quat_mul, quat_inv, yaw_quat
+from smpl_envs.rotations import quat_apply, yaw_quat
 
 SHIPPED = ("stand", "walk", "run", "turn", "jump", "kick", "gesture", "crouch")
 

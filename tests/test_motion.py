@@ -1,4 +1,3 @@
-
 import joblib
 import mujoco
 import numpy as np

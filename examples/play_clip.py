@@ -23,7 +23,6 @@ from smpl_envs.humanoid import build_humanoid
 from smpl_envs.motion import available_clips, load_motion
 from smpl_envs.render import FrameRenderer, write_strip, write_video
 
-SUBSTEPS = 4  # 4 x 1/120 s physics steps per 1/30 s control step (see README, "Timing")
 
 
 def kinematic_frames(model, motion, renderer):
@@ -36,13 +35,14 @@ def kinematic_frames(model, motion, renderer):
 
 def physics_frames(model, motion, renderer):
     """Open-loop PD tracking; also yields the mean body distance to the reference (m)."""
+    substeps = round(1.0 / (motion.fps * model.opt.timestep))  # 4 at 1/120 s (README, "Timing")
     data = mujoco.MjData(model)
     data.qpos[:], data.qvel[:] = motion.qpos[0], motion.qvel[0]
     mujoco.mj_forward(model, data)
     for t in range(motion.num_frames):
         if t > 0:
             data.ctrl[:] = np.clip(motion.dof_pos[t], *model.actuator_ctrlrange.T)
-            mujoco.mj_step(model, data, nstep=SUBSTEPS)
+            mujoco.mj_step(model, data, nstep=substeps)
         error = np.linalg.norm(data.xpos[1:] - motion.body_pos[t], axis=-1).mean()
         yield renderer.render(data, markers=motion.body_pos[t]), error
 

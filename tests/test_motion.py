@@ -9,7 +9,7 @@ from smpl_envs.motion import (
     Motion, MotionFileError, MotionLib, available_clips, load_motion, read_motion_file,
 )
 from smpl_envs.motion.export import to_amass, to_phc_pkl
-from smpl_envs.motion.kinematics import lowest_point
+from smpl_envs.humanoid.kinematics import lowest_point
 from smpl_envs.humanoid.skeleton import MEAN_SKELETON
 from smpl_envs.rotations import quat_apply, yaw_quat
 

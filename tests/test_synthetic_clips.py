@@ -13,7 +13,7 @@ import pytest
 
 from smpl_envs.humanoid import build_humanoid
 from smpl_envs.humanoid.skeleton import BODY_NAMES, HINGE_NAMES, MEAN_SKELETON
-from smpl_envs.motion.kinematics import forward_kinematics, lowest_point
+from smpl_envs.humanoid.kinematics import forward_kinematics, lowest_point
 from smpl_envs.motion.loaders import read_motion_file
 from smpl_envs.motion.motion import Motion
 from smpl_envs.motion.synthetic import CLIP_NAMES, CLIPS_DIR, GRAVITY, generate

@@ -13,6 +13,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from .kinematics import forward_kinematics, lowest_point
 from .skeleton import (
     ACTION_SCALE, BODY_NAMES, HINGE_AXES, KD, KP, MEAN_MASS, MEAN_SKELETON, PARENTS, TORQUE_LIMIT,
     Skeleton, anatomical_limits,
@@ -51,8 +52,6 @@ def _look_at(eye, target) -> np.ndarray:
 
 def standing_height(skeleton: Skeleton) -> float:
     """Pelvis height at which the rest pose (all hinges at zero) stands with its soles on z = 0."""
-    from ..motion.kinematics import forward_kinematics, lowest_point
-
     ident = np.tile([1.0, 0.0, 0.0, 0.0], (1, len(BODY_NAMES), 1))
     pos, quat = forward_kinematics(np.zeros((1, 3)), ident, skeleton.offsets)
     return float(-lowest_point(pos, quat, skeleton)[0])

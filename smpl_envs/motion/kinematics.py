@@ -1,4 +1,5 @@
-"""Batched kinematics of the SMPL skeleton, over many clips concatenated along the frame axis.
+"""Per-clip operations along time, over many clips concatenated along the frame axis, and the
+hinge-angle decomposition. (Where the bodies are for given rotations: humanoid.kinematics.)
 
 A MotionLib holds thousands of clips as one (F, ...) array per quantity. Everything here works on
 such arrays at once; per-clip operations along time (finite differences, smoothing, unwrapping)
@@ -12,32 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..humanoid.skeleton import PARENTS, Skeleton
-from ..rotations import (
-    quat_apply, quat_inv, quat_mul, quat_to_euler_xyz, quat_to_rotvec, quat_z_axis_row,
-)
-
-
-def forward_kinematics(
-    root_pos: np.ndarray, local_quat: np.ndarray, offsets: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Body positions (..., 24, 3) and world orientations (..., 24, 4) from the pelvis position
-    (..., 3), local rotations (..., 24, 4; entry 0 is the pelvis' world orientation) and joint
-    offsets (24, 3). This is MuJoCo's kinematics for bodies whose joints sit at the body origin."""
-    pos = [root_pos]
-    quat = [local_quat[..., 0, :]]
-    for i in range(1, len(PARENTS)):  # tree depth forces a loop over bodies; frames are batched
-        p = PARENTS[i]
-        pos.append(pos[p] + quat_apply(quat[p], offsets[i]))
-        quat.append(quat_mul(quat[p], local_quat[..., i, :]))
-    return np.stack(pos, -2), np.stack(quat, -2)
-
-
-def lowest_point(body_pos: np.ndarray, body_quat: np.ndarray, skeleton: Skeleton) -> np.ndarray:
-    """Height (...,) of the lowest point of the humanoid's collision geometry in each frame."""
-    points, radii = skeleton.support_points()  # (24, K, 3), (24, K)
-    z = body_pos[..., None, 2] + np.einsum("...bj,bkj->...bk", quat_z_axis_row(body_quat), points)
-    return (z - radii).min(axis=(-1, -2))
+from ..rotations import quat_inv, quat_mul, quat_to_euler_xyz, quat_to_rotvec
 
 
 def hinge_angles(local_quat: np.ndarray) -> np.ndarray:
@@ -88,22 +64,23 @@ class Segments:
         return np.clip(np.arange(self.num_frames) + k, self.first, self.last)
 
 
-def time_derivative(x: np.ndarray, seg: Segments, dt: float) -> np.ndarray:
-    """Central differences inside each clip, one-sided at its ends, zero for one-frame clips."""
+def _central_difference(x: np.ndarray, seg: Segments, dt: float, delta) -> np.ndarray:
+    """delta(x[next], x[prev]) / elapsed time, with next / prev clamped to each frame's clip:
+    central inside a clip, one-sided at its ends, zero for one-frame clips."""
     nxt, prv = seg.shifted(1), seg.shifted(-1)
-    span = (nxt - prv).astype(float)
-    span = span.reshape(-1, *([1] * (x.ndim - 1)))
+    span = (nxt - prv).astype(float).reshape(-1, *([1] * (x.ndim - 1)))
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(span > 0, (x[nxt] - x[prv]) / (span * dt), 0.0)
+        return np.where(span > 0, delta(x[nxt], x[prv]) / (span * dt), 0.0)
+
+
+def time_derivative(x: np.ndarray, seg: Segments, dt: float) -> np.ndarray:
+    """Per-clip finite-difference velocity of x (F, ...)."""
+    return _central_difference(x, seg, dt, np.subtract)
 
 
 def angular_velocity(quat: np.ndarray, seg: Segments, dt: float) -> np.ndarray:
-    """World-frame angular velocity (F, ..., 3) of orientations (F, ..., 4), as time_derivative."""
-    nxt, prv = seg.shifted(1), seg.shifted(-1)
-    span = (nxt - prv).astype(float).reshape(-1, *([1] * (quat.ndim - 1)))
-    rotvec = quat_to_rotvec(quat_mul(quat[nxt], quat_inv(quat[prv])))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(span > 0, rotvec / (span * dt), 0.0)
+    """World-frame angular velocity (F, ..., 3) of orientations (F, ..., 4)."""
+    return _central_difference(quat, seg, dt, lambda a, b: quat_to_rotvec(quat_mul(a, quat_inv(b))))
 
 
 def smooth(x: np.ndarray, seg: Segments, sigma: float) -> np.ndarray:

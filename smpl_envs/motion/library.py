@@ -108,7 +108,7 @@ class MotionLib:
                     lengths=np.array([r.num_frames for r in raws]), errors=list(errors))
         self._init(skeleton, meta, _derive_chunked(raws, skeleton, ground))
         if random_yaw:
-            self.rotate_yaw(np.random.default_rng(seed).uniform(-np.pi, np.pi, self.num_motions))
+            self.randomize_yaw(seed)
 
     def _init(self, skeleton: Skeleton, meta: dict, arrays: dict[str, np.ndarray]) -> None:
         self.skeleton = skeleton
@@ -163,7 +163,7 @@ class MotionLib:
             warnings.warn(f"{len(lib.errors)} motion file(s) could not be loaded (see MotionLib.errors):"
                           f"\n{shown}{more}", stacklevel=2)
         if random_yaw:
-            lib.rotate_yaw(np.random.default_rng(seed).uniform(-np.pi, np.pi, lib.num_motions))
+            lib.randomize_yaw(seed)
         return lib
 
     @classmethod
@@ -230,6 +230,10 @@ class MotionLib:
         for name in LIB_FIELDS:
             setattr(self, name, getattr(rotated, name))
         self.yaw = self.yaw + yaw
+
+    def randomize_yaw(self, seed: int | None = None) -> None:
+        """Turn every clip by its own uniform random yaw (training sees all headings)."""
+        self.rotate_yaw(np.random.default_rng(seed).uniform(-np.pi, np.pi, self.num_motions))
 
     def _rotated_copy(self, yaw: np.ndarray) -> "MotionLib":
         q = yaw_quat(yaw[self.seg.clip_of_frame])[:, None].astype(np.float32)

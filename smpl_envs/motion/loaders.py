@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..humanoid.skeleton import MEAN_SKELETON, NUM_BODIES, SMPL_JOINT_OF_BODY, SMPL_TO_BODY_FRAME, Skeleton
-from ..rotations import quat_from_matrix, quat_from_rotvec, quat_mul
+from ..rotations import quat_from_matrix, quat_from_rotvec, quat_inv, quat_mul
 from .motion import FORMAT_NAME, FORMAT_VERSION, RawMotion
 
 MOTION_SUFFIXES = (".npz", ".pkl")
@@ -45,7 +45,7 @@ def smpl_pose_to_local_quat(pose_aa: np.ndarray) -> np.ndarray:
     full[:, :j] = pose_aa
     q_smpl = quat_from_rotvec(full[:, SMPL_JOINT_OF_BODY])  # (T, 24, 4), body order
     conj = np.broadcast_to(_FRAME_QUAT, q_smpl.shape)
-    inv = conj * np.array([1.0, -1.0, -1.0, -1.0])
+    inv = quat_inv(conj)
     local = quat_mul(quat_mul(conj, q_smpl), inv)
     local[:, 0] = quat_mul(q_smpl[:, 0], inv[:, 0])
     return local

@@ -13,12 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..humanoid.kinematics import forward_kinematics, lowest_point
 from ..humanoid.skeleton import MEAN_SKELETON, Skeleton
 from ..rotations import quat_apply, quat_inv, quat_mul, quat_slerp, yaw_quat
-from .kinematics import (
-    Segments, angular_velocity, forward_kinematics, hinge_angles, lowest_point, smooth,
-    time_derivative, unwrap,
-)
+from .kinematics import Segments, angular_velocity, hinge_angles, smooth, time_derivative, unwrap
 
 FPS = 30.0
 FORMAT_NAME = "smpl_envs.motion"

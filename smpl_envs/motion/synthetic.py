@@ -41,7 +41,7 @@ from ..rotations import (
     quat_apply, quat_from_euler_xyz, quat_from_matrix, quat_from_rotvec, quat_inv, quat_mul,
     quat_to_matrix, yaw_quat,
 )
-from .kinematics import forward_kinematics
+from ..humanoid.kinematics import forward_kinematics
 from .motion import FPS, RawMotion
 
 CLIP_NAMES: tuple[str, ...] = ("stand", "walk", "run", "turn", "jump", "kick", "gesture", "crouch")

@@ -9,3 +9,23 @@ if "MUJOCO_GL" not in _os.environ and not (_os.environ.get("DISPLAY") or _os.env
     _os.environ["MUJOCO_GL"] = "egl"
 
 __version__ = "0.1.0"
+
+
+# Task ids -> (single-world class, batched class) in smpl_envs.envs. Registering by string keeps
+# `import smpl_envs` light: MuJoCo and the tasks load on the first gym.make.
+ENV_IDS = {
+    "SMPL/Imitation-v0": ("ImitationEnv", "ImitationVecEnv"),
+    "SMPL/KeypointImitation-v0": ("KeypointImitationEnv", "KeypointImitationVecEnv"),
+}
+
+
+def _register() -> None:
+    import gymnasium as gym
+
+    for env_id, (single, vector) in ENV_IDS.items():
+        if env_id not in gym.registry:
+            gym.register(env_id, entry_point=f"smpl_envs.envs:{single}",
+                         vector_entry_point=f"smpl_envs.envs:{vector}")
+
+
+_register()

@@ -20,6 +20,7 @@ from typing import Iterable, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
+from ..features import BodyState, amp_features, rotmat_from_quat
 from ..humanoid.skeleton import MEAN_SKELETON, Skeleton
 from ..humanoid.skeleton import PARENTS
 from ..rotations import quat_apply, quat_inv, quat_mul, quat_slerp, yaw_quat
@@ -313,6 +314,31 @@ class MotionLib:
         f["body_quat"] = quat_slerp(self.body_quat[f0], self.body_quat[f1], w[:, None, None])
         return MotionState(f["body_pos"], f["body_quat"], f["body_lin_vel"], f["body_ang_vel"],
                            f["dof_pos"], f["dof_vel"], _qpos(f), _qvel(f))
+
+    # ------------------------------------------------------------------ exact frames (env hot path)
+    def body_state(self, frames: np.ndarray) -> BodyState:
+        """Reference bodies at global frame indices `frames` (N,), no interpolation: the tasks
+        step at the library's frame rate, so every lookup they make is an exact frame."""
+        return BodyState(pos=self.body_pos[frames], rot=rotmat_from_quat(self.body_quat[frames]),
+                         lin_vel=self.body_lin_vel[frames], ang_vel=self.body_ang_vel[frames],
+                         dof_pos=self.dof_pos[frames], dof_vel=self.dof_vel[frames])
+
+    def qpos_qvel(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """MuJoCo (qpos, qvel) of global frame indices `frames`, for reference state init."""
+        f = {name: getattr(self, name)[frames] for name in LIB_FIELDS}
+        return _qpos(f), _qvel(f)
+
+    def amp_features(self, motion_ids: np.ndarray, times: np.ndarray, num_frames: int = 10) -> np.ndarray:
+        """Discriminator features of the reference: (N, num_frames, 232), frames spaced 1/fps and
+        ending at `times`, built by the same function the environments use for the humanoid."""
+        motion_ids = np.asarray(motion_ids)
+        n = len(motion_ids)
+        offsets = (np.arange(num_frames) - (num_frames - 1)) / self.fps
+        t = (np.asarray(times, float)[:, None] + offsets).ravel()
+        st = self.get_state(np.repeat(motion_ids, num_frames), t)
+        state = BodyState(pos=st.body_pos, rot=rotmat_from_quat(st.body_quat), lin_vel=st.body_lin_vel,
+                          ang_vel=st.body_ang_vel, dof_pos=st.dof_pos, dof_vel=st.dof_vel)
+        return amp_features(state).astype(np.float32).reshape(n, num_frames, -1)
 
 
 # What a library stores per frame; qpos / qvel / local rotations are assembled from these.

@@ -1,0 +1,168 @@
+"""Motion imitation: `SMPL/Imitation-v0` (rotation goal) and `SMPL/KeypointImitation-v0`.
+
+The humanoid starts on a random frame of a clip drawn by the MotionLib's weights (reference state
+initialisation), tracks the clip with PD targets, and its episode ends when its bodies drift on
+average more than `termination_distance` from the reference (ankles and toes excluded; PHC's
+relaxed early termination), when its simulation diverges, or at the clip's last frame
+(truncation).
+
+Observation (float32, everything in the simulated humanoid's heading frame; `t+1` is the next
+reference frame, the one the action should reach):
+
+| slice | size | Imitation-v0 | KeypointImitation-v0 |
+|---|---|---|---|
+| 0:1 | 1 | pelvis height | same |
+| 1:70 | 69 | bodies 1-23 relative to the pelvis | same |
+| 70:214 | 144 | 24 body rotations (6D) | same |
+| 214:286 | 72 | 24 body linear velocities | same |
+| 286:358 | 72 | 24 body angular velocities | same |
+| 358:502 / 358:430 | 144 / 72 | ref rotation (-) sim rotation, t+1 (6D) | ref - sim position, t+1 |
+| 502:574 / 430:502 | 72 | ref - sim position, t+1 | ref - sim linear velocity, t+1 |
+| 574:646 / 502:574 | 72 | ref - sim linear velocity, t+1 | ref position rel. sim pelvis, t+1 |
+| 646:718 | 72 | ref - sim angular velocity, t+1 | - |
+| 718:862 | 144 | ref rotation, t+1 (6D) | - |
+| 862:934 | 72 | ref position rel. sim pelvis, t+1 | - |
+
+Totals: 934 (Imitation), 574 (KeypointImitation). Blocks over bodies follow BODY_NAMES; 6D is
+the first two columns of the rotation matrix. `env.unwrapped.observation_structure` gives the
+slices by name.
+
+Reward (REFERENCE.md section 3, the anchors' code form, each term in `info["reward_<term>"]`):
+    pos     0.5 exp(-100 mean ||p_ref - p||^2)
+    rot     0.3 exp(-10 mean angle(q_ref, q)^2)
+    lin_vel 0.1 exp(-0.1 mean ||v_ref - v||^2)
+    ang_vel 0.1 exp(-0.1 mean ||w_ref - w||^2)
+    energy  -0.0005 sum_j |tau_j qdot_j|   (torques of the last physics substep)
+The means run over the 24 bodies (and xyz); weights and scales are `gym.make` kwargs.
+
+`info` also carries the metrics' raw inputs (`body_pos`, `ref_body_pos`), `motion_id`,
+`motion_time`, `diverged`, and `amp_obs`, the AMP discriminator features of the step (232).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..features import (IMITATION_GOAL_LAYOUT, KEYPOINT_GOAL_LAYOUT, SELF_OBS_LAYOUT, BodyState,
+                        heading_rotation, imitation_goal, keypoint_goal, layout_size, layout_slices,
+                        rotation_angle, self_obs, xp)
+from ..humanoid.skeleton import BODY_NAMES
+from .base import HumanoidVecEnv, SingleEnv
+
+REWARD_WEIGHTS = {"pos": 0.5, "rot": 0.3, "lin_vel": 0.1, "ang_vel": 0.1}
+REWARD_SCALES = {"pos": 100.0, "rot": 10.0, "lin_vel": 0.1, "ang_vel": 0.1}
+ENERGY_WEIGHT = 0.0005
+TERMINATION_DISTANCE = 0.5
+# Feet are left out of the termination test: their errors say little about a fall.
+TERMINATION_BODIES = np.array([i for i, n in enumerate(BODY_NAMES) if not n.endswith(("Ankle", "Toe"))])
+
+
+# ---------------------------------------------------------------------- pure task functions
+def imitation_reward(sim: BodyState, ref: BodyState, actuator_force, weights=REWARD_WEIGHTS,
+                     scales=REWARD_SCALES, energy_weight=ENERGY_WEIGHT):
+    """(total (N,), {term: (N,)}) for the imitation reward defined in the module docstring."""
+    m = xp(sim.pos)
+    errors = {
+        "pos": ((ref.pos - sim.pos) ** 2).mean(axis=(-1, -2)),
+        "rot": (rotation_angle(ref.rot, sim.rot) ** 2).mean(axis=-1),
+        "lin_vel": ((ref.lin_vel - sim.lin_vel) ** 2).mean(axis=(-1, -2)),
+        "ang_vel": ((ref.ang_vel - sim.ang_vel) ** 2).mean(axis=(-1, -2)),
+    }
+    terms = {k: weights[k] * m.exp(-scales[k] * errors[k]) for k in errors}
+    terms["energy"] = -energy_weight * m.abs(actuator_force * sim.dof_vel).sum(axis=-1)
+    total = terms["pos"] + terms["rot"] + terms["lin_vel"] + terms["ang_vel"] + terms["energy"]
+    return total, terms
+
+
+def mean_body_distance(sim: BodyState, ref: BodyState, bodies=None):
+    """(N,) mean Euclidean distance (m) between simulated and reference bodies."""
+    m = xp(sim.pos)
+    d = ref.pos - sim.pos if bodies is None else ref.pos[:, bodies] - sim.pos[:, bodies]
+    return m.sqrt((d * d).sum(axis=-1)).mean(axis=-1)
+
+
+def imitation_terminated(sim: BodyState, ref: BodyState, distance=TERMINATION_DISTANCE):
+    """(N,) relaxed early termination: feet-excluded mean body distance above `distance`."""
+    return mean_body_distance(sim, ref, TERMINATION_BODIES) > distance
+
+
+def imitation_obs(sim: BodyState, ref_next: BodyState):
+    m = xp(sim.pos)
+    heading = heading_rotation(sim.rot[:, 0])
+    return m.concatenate([self_obs(sim, heading), imitation_goal(sim, ref_next, heading)], -1)
+
+
+def keypoint_imitation_obs(sim: BodyState, ref_next: BodyState):
+    m = xp(sim.pos)
+    heading = heading_rotation(sim.rot[:, 0])
+    return m.concatenate([self_obs(sim, heading), keypoint_goal(sim, ref_next, heading)], -1)
+
+
+# ---------------------------------------------------------------------- environments
+class ImitationVecEnv(HumanoidVecEnv):
+    """`gym.make_vec("SMPL/Imitation-v0", num_envs=N, **kwargs)`.
+
+    kwargs: motions ("walk"; clip name, file, directory, saved library, list, or MotionLib),
+    reward_weights / reward_scales (dicts over pos, rot, lin_vel, ang_vel), energy_weight,
+    termination_distance (m; None disables early termination), start ("random" or
+    "beginning"), max_episode_steps, autoreset_mode, substeps, num_threads, render_mode,
+    render_size, show_reference, render_world.
+    """
+
+    goal_layout = IMITATION_GOAL_LAYOUT
+    obs_dim = layout_size(SELF_OBS_LAYOUT) + layout_size(IMITATION_GOAL_LAYOUT)
+    _obs_fn = staticmethod(imitation_obs)
+
+    def __init__(self, num_envs: int = 1, *, reward_weights: dict | None = None,
+                 reward_scales: dict | None = None, energy_weight: float = ENERGY_WEIGHT,
+                 termination_distance: float | None = TERMINATION_DISTANCE, **kwargs):
+        self.reward_weights = _merge("reward_weights", REWARD_WEIGHTS, reward_weights)
+        self.reward_scales = _merge("reward_scales", REWARD_SCALES, reward_scales)
+        self.energy_weight = float(energy_weight)
+        self.termination_distance = termination_distance
+        super().__init__(num_envs, **kwargs)
+
+    def _observe(self, sim, ref_next):
+        return self._obs_fn(sim, ref_next)
+
+    def _reward(self, sim, ref):
+        return imitation_reward(sim, ref, self.sim.actuator_force, self.reward_weights,
+                                self.reward_scales, self.energy_weight)
+
+    def _terminated(self, sim, ref):
+        if self.termination_distance is None:
+            return np.zeros(self.num_envs, bool)
+        return imitation_terminated(sim, ref, self.termination_distance)
+
+    @property
+    def observation_structure(self) -> dict[str, slice]:
+        return layout_slices({"self": SELF_OBS_LAYOUT, "goal": self.goal_layout})
+
+
+class KeypointImitationVecEnv(ImitationVecEnv):
+    """`gym.make_vec("SMPL/KeypointImitation-v0", ...)`: as Imitation, with the keypoint goal
+    (positions and velocities only); same kwargs."""
+
+    goal_layout = KEYPOINT_GOAL_LAYOUT
+    obs_dim = layout_size(SELF_OBS_LAYOUT) + layout_size(KEYPOINT_GOAL_LAYOUT)
+    _obs_fn = staticmethod(keypoint_imitation_obs)
+
+
+class ImitationEnv(SingleEnv):
+    """`gym.make("SMPL/Imitation-v0", **kwargs)`: one world; kwargs as ImitationVecEnv."""
+
+    vec_class = ImitationVecEnv
+
+
+class KeypointImitationEnv(SingleEnv):
+    """`gym.make("SMPL/KeypointImitation-v0", **kwargs)`: one world; kwargs as ImitationVecEnv."""
+
+    vec_class = KeypointImitationVecEnv
+
+
+def _merge(name: str, defaults: dict, given: dict | None) -> dict:
+    given = dict(given or {})
+    unknown = set(given) - set(defaults)
+    if unknown:
+        raise ValueError(f"{name}: unknown terms {sorted(unknown)}; known: {sorted(defaults)}")
+    return {**defaults, **{k: float(v) for k, v in given.items()}}

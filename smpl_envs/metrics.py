@@ -1,0 +1,204 @@
+"""Motion-imitation metrics of Perpetual Humanoid Control (PHC, Luo et al. 2023), in numpy.
+
+Inputs are body-position trajectories of one clip: ``sim`` (what the simulated humanoid did) and
+``ref`` (the reference motion it imitated), float arrays of shape (T, J, 3) with T >= 1 frames and
+J bodies (the 24 SMPL bodies; index 0 is the pelvis, the root). Positions are in metres in the
+world frame, sampled at 30 frames per second. Write p_t,j for the position of body j at frame t
+and ||.|| for the Euclidean norm. Reported errors are in millimetres (metres x 1000).
+
+Definitions
+-----------
+body distance  d_t = (1/J) sum_j ||sim_t,j - ref_t,j||, per frame, in metres.
+
+success        The clip succeeds iff d_t <= threshold (0.5 m by default) at every frame; a frame
+               with d_t strictly greater fails it. The fail frame is the first such t (-1 if none).
+               PHC counts the whole clip as failed from that frame on, so errors of failed clips
+               are reported separately (see `summarize`).
+
+E_g-mpjpe      Global mean per-joint position error, in mm:
+               1000 * mean over t and j of ||sim_t,j - ref_t,j||  (= 1000 * mean_t d_t).
+
+E_mpjpe        Root-relative mean per-joint position error, in mm: as E_g-mpjpe after replacing
+               each trajectory's positions by p_t,j - p_t,root (each by its own root, per frame).
+               The root itself then has zero error and still counts among the J bodies.
+
+E_acc          Acceleration error, in mm/frame^2: with second differences
+               a_t,j = p_t+1,j - 2 p_t,j + p_t-1,j  (t = 1 .. T-2; not divided by dt^2),
+               1000 * mean over t and j of ||a^sim_t,j - a^ref_t,j||. NaN when T < 3.
+
+E_vel          Velocity error, in mm/frame: with first differences v_t,j = p_t+1,j - p_t,j
+               (t = 0 .. T-2; not divided by dt), 1000 * mean over t and j of
+               ||v^sim_t,j - v^ref_t,j||. NaN when T < 2.
+
+Aggregates (`summarize`): success rate = successful clips / clips; each error is the mean of the
+per-clip values over the successful clips (how PHC reports them; NaN if none succeeded), and also
+over all clips (keys prefixed ``all_``). Clip values that are NaN (too short a clip) are skipped.
+Clips are weighted equally, not by their length.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+MM = 1000.0  # metres -> millimetres
+ERROR_KEYS = ("mpjpe_g", "mpjpe_l", "accel", "vel")
+
+
+def _check(sim, ref) -> tuple[np.ndarray, np.ndarray]:
+    """Both as float (T, J, 3) arrays of the same shape, finite; ValueError otherwise."""
+    sim, ref = np.asarray(sim, dtype=float), np.asarray(ref, dtype=float)
+    for name, a in (("sim", sim), ("ref", ref)):
+        if a.ndim != 3 or a.shape[2] != 3 or a.shape[0] < 1 or a.shape[1] < 1:
+            raise ValueError(f"{name} must have shape (T, J, 3) with T, J >= 1, got {a.shape}")
+    if sim.shape != ref.shape:
+        raise ValueError(f"sim and ref shapes differ: {sim.shape} vs {ref.shape}")
+    for name, a in (("sim", sim), ("ref", ref)):
+        if not np.isfinite(a).all():
+            raise ValueError(f"{name} contains NaN or inf")
+    return sim, ref
+
+
+def _mean_norm(diff: np.ndarray) -> float:
+    """Mean Euclidean norm over all (frame, body) vectors, in mm; NaN for no vectors."""
+    if diff.shape[0] == 0:  # too few frames for this difference order: no warning, just NaN
+        return math.nan
+    return float(np.linalg.norm(diff, axis=-1).mean() * MM)
+
+
+def body_distance(sim, ref) -> np.ndarray:
+    """(T,) mean over bodies of the Euclidean distance between sim and ref, in metres."""
+    sim, ref = _check(sim, ref)
+    return np.linalg.norm(sim - ref, axis=-1).mean(axis=1)
+
+
+def _fail_frame(dist: np.ndarray, threshold: float) -> int:
+    over = np.flatnonzero(dist > threshold)
+    return int(over[0]) if over.size else -1
+
+
+def success(sim, ref, threshold: float = 0.5) -> bool:
+    """True iff the mean body distance never exceeds `threshold` metres (equal still passes)."""
+    return bool((body_distance(sim, ref) <= threshold).all())
+
+
+def mpjpe_global(sim, ref) -> float:
+    """E_g-mpjpe in mm: mean over frames and bodies of ||sim - ref||."""
+    sim, ref = _check(sim, ref)
+    return _mean_norm(sim - ref)
+
+
+def mpjpe_local(sim, ref, root: int = 0) -> float:
+    """E_mpjpe in mm: as `mpjpe_global` with each trajectory made relative to its own root."""
+    sim, ref = _check(sim, ref)
+    if not -sim.shape[1] <= root < sim.shape[1]:
+        raise ValueError(f"root index {root} out of range for {sim.shape[1]} bodies")
+    # [root] (not root) keeps the body axis so the subtraction broadcasts over bodies
+    return _mean_norm((sim - sim[:, [root]]) - (ref - ref[:, [root]]))
+
+
+def accel_error(sim, ref) -> float:
+    """E_acc in mm/frame^2 from second differences (not divided by dt^2); NaN when T < 3."""
+    sim, ref = _check(sim, ref)
+    # the second difference is linear, so difference the error instead of each trajectory
+    e = sim - ref
+    return _mean_norm(e[2:] - 2.0 * e[1:-1] + e[:-2])
+
+
+def vel_error(sim, ref) -> float:
+    """E_vel in mm/frame from first differences (not divided by dt); NaN when T < 2."""
+    sim, ref = _check(sim, ref)
+    return _mean_norm(np.diff(sim - ref, axis=0))
+
+
+def clip_metrics(sim, ref, threshold: float = 0.5) -> dict:
+    """All metrics of one clip: success, frames, mpjpe_g, mpjpe_l, accel, vel, fail_frame."""
+    sim, ref = _check(sim, ref)
+    fail = _fail_frame(body_distance(sim, ref), threshold)
+    return {
+        "success": fail < 0,
+        "frames": int(sim.shape[0]),
+        "mpjpe_g": mpjpe_global(sim, ref),
+        "mpjpe_l": mpjpe_local(sim, ref),
+        "accel": accel_error(sim, ref),
+        "vel": vel_error(sim, ref),
+        "fail_frame": fail,
+    }
+
+
+def _nanmean(values) -> float:
+    """Mean of the non-NaN values, NaN if there are none (np.nanmean would warn)."""
+    a = np.asarray(list(values), dtype=float)
+    a = a[~np.isnan(a)]
+    return float(a.mean()) if a.size else math.nan
+
+
+def summarize(rows: list[dict]) -> dict:
+    """Aggregate row: clips, success_rate, errors over successful clips, and all_* over all clips."""
+    ok = [r for r in rows if r["success"]]
+    out = {
+        "clips": len(rows),
+        "success_rate": len(ok) / len(rows) if rows else math.nan,
+    }
+    for key in ERROR_KEYS:
+        out[key] = _nanmean(r[key] for r in ok)
+    for key in ERROR_KEYS:
+        out["all_" + key] = _nanmean(r[key] for r in rows)
+    return out
+
+
+def _num(x: float) -> str:
+    return "-" if x is None or math.isnan(x) else f"{x:.1f}"
+
+
+def format_table(rows: list[dict], summary: dict | None = None, names_key: str = "name") -> str:
+    """Fixed-width text table: one line per clip, then ALL (success %, total frames, errors over
+    successful clips). Undefined values (NaN) print as '-'."""
+    if summary is None:
+        summary = summarize(rows)
+    names = [str(r.get(names_key, i)) for i, r in enumerate(rows)]
+    w = max([len("clip"), len("ALL"), *map(len, names)])
+    cols = (("succ", 6), ("frames", 7), ("E_g-mpjpe", 10), ("E_mpjpe", 8), ("E_acc", 11), ("E_vel", 9))
+
+    def line(cells):
+        return "  ".join([cells[0].ljust(w)] + [c.rjust(n) for c, (_, n) in zip(cells[1:], cols)])
+
+    lines = [
+        line(["clip"] + [h for h, _ in cols]),
+        line(["", "", "", "mm", "mm", "mm/frame^2", "mm/frame"]),
+    ]
+    lines.append("-" * len(lines[0]))
+    for name, r in zip(names, rows):
+        lines.append(line([name, "yes" if r["success"] else "no", str(int(r["frames"]))]
+                          + [_num(r[k]) for k in ERROR_KEYS]))
+    rate = summary["success_rate"]
+    lines.append("-" * len(lines[0]))
+    lines.append(line(["ALL", "-" if math.isnan(rate) else f"{100 * rate:.1f}%",
+                       str(sum(int(r["frames"]) for r in rows))]
+                      + [_num(summary[k]) for k in ERROR_KEYS]))
+    return "\n".join(lines)
+
+
+def _plain(x):
+    """Recursively to JSON-native types: numpy scalars/arrays unpacked, NaN/inf -> None."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in x]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    return x
+
+
+def to_json(rows: list[dict], summary: dict | None = None) -> str:
+    """JSON text {"clips": rows, "summary": summary}, indent 2, NaN written as null."""
+    if summary is None:
+        summary = summarize(rows)
+    # allow_nan=False: any non-finite value that slipped through is a bug, not invalid JSON output
+    return json.dumps({"clips": _plain(rows), "summary": _plain(summary)}, indent=2, allow_nan=False)

@@ -1,0 +1,139 @@
+"""N humanoid worlds on the CPU: one MjModel, N MjData, stepped by a thread pool.
+
+MuJoCo's Python bindings release the GIL inside every `mj_*` call, so plain threads use every
+core without subprocesses or copies of the model. Each thread owns a fixed slice of worlds.
+
+Each physics substep is run as `mj_step2` then `mj_step1` rather than `mj_step`. The pair does
+exactly the same arithmetic (the tests check bit-equality), but it leaves positions, rotations and
+com-based velocities computed for the *current* state, so observations need no extra
+`mj_forward`: after `mj_step` they would describe the state one substep earlier.
+
+A world whose state turns non-finite, whose speeds explode, or that MuJoCo itself resets after a
+numerical warning is reported in the mask `step` returns; the task ends that episode and resets
+only that world.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import mujoco
+import numpy as np
+
+from ..features import BodyState
+
+# Speeds no humanoid motion reaches (m/s, rad/s): treat them as a diverged simulation.
+MAX_SPEED = 1.0e3
+_BAD_WARNINGS = [int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQVEL),
+                 int(mujoco.mjtWarning.mjWARN_BADQACC)]
+
+
+class CPUSim:
+    """`num_worlds` copies of `model`, stepped `substeps` physics steps per `step(ctrl)`.
+
+    After construction, `set_state` and `step`, the arrays below hold every world's current state
+    (row i is world i); they are overwritten in place by the next call.
+
+    qpos (N, nq), qvel (N, nv), ctrl (N, nu), actuator_force (N, nu) of the last substep, and
+    `bodies`, a `BodyState` of the 24 humanoid bodies (world body excluded).
+    """
+
+    def __init__(self, model: mujoco.MjModel, num_worlds: int, substeps: int,
+                 num_threads: int | None = None):
+        if num_worlds < 1:
+            raise ValueError(f"num_worlds must be >= 1, got {num_worlds}")
+        self.model = model
+        self.num_worlds = num_worlds
+        self.substeps = int(substeps)
+        self.datas = [mujoco.MjData(model) for _ in range(num_worlds)]
+        n, nb = num_worlds, model.nbody - 1
+        self.qpos = np.zeros((n, model.nq))
+        self.qvel = np.zeros((n, model.nv))
+        self.ctrl = np.zeros((n, model.nu))
+        self.actuator_force = np.zeros((n, model.nu))
+        self._xpos = np.zeros((n, nb, 3))
+        self._xmat = np.zeros((n, nb, 9))
+        self._cvel = np.zeros((n, nb, 6))
+        self._com = np.zeros((n, 3))
+        self._warnings = np.zeros(n, np.int64)
+        self._bad = np.zeros(n, bool)
+        threads = num_threads or min(os.cpu_count() or 1, num_worlds)
+        self.num_threads = max(1, min(threads, num_worlds))
+        self._slices = [s for s in np.array_split(np.arange(n), self.num_threads) if len(s)]
+        self._pool = ThreadPoolExecutor(self.num_threads) if self.num_threads > 1 else None
+        for d in self.datas:
+            mujoco.mj_step1(model, d)
+        self._gather(np.arange(n))
+
+    # ------------------------------------------------------------------ state in and out
+    def set_state(self, ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        """Place worlds `ids` at (qpos, qvel), at rest otherwise (time, warnings, ctrl cleared)."""
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        qpos, qvel = np.asarray(qpos, float).reshape(len(ids), -1), np.asarray(qvel, float).reshape(len(ids), -1)
+        for k, i in enumerate(ids):
+            d = self.datas[i]
+            mujoco.mj_resetData(self.model, d)
+            d.qpos[:] = qpos[k]
+            d.qvel[:] = qvel[k]
+            mujoco.mj_step1(self.model, d)
+        self.ctrl[ids] = 0.0
+        self.actuator_force[ids] = 0.0
+        self._gather(ids)
+
+    def step(self, ctrl: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
+        """Apply `ctrl` (N, nu) for `substeps` physics steps in every world (or only where the
+        (N,) mask `active` is set); returns the (N,) mask of worlds that diverged in this step."""
+        self.ctrl[:] = ctrl
+        self._bad[:] = False
+        slices = self._slices if active is None else [s[active[s]] for s in self._slices]
+        if self._pool is None:
+            for s in slices:
+                self._step_slice(s)
+        else:
+            for f in [self._pool.submit(self._step_slice, s) for s in slices if len(s)]:
+                f.result()
+        return self._bad.copy()
+
+    def _step_slice(self, ids: np.ndarray) -> None:
+        m, step1, step2 = self.model, mujoco.mj_step1, mujoco.mj_step2
+        for i in ids:
+            d = self.datas[i]
+            d.ctrl[:] = self.ctrl[i]
+            for _ in range(self.substeps):
+                step2(m, d)
+                step1(m, d)
+        self._gather(ids)
+
+    def _gather(self, ids: np.ndarray) -> None:
+        for i in ids:
+            d = self.datas[i]
+            self.qpos[i] = d.qpos
+            self.qvel[i] = d.qvel
+            self.actuator_force[i] = d.actuator_force
+            self._xpos[i] = d.xpos[1:]
+            self._xmat[i] = d.xmat[1:]
+            self._cvel[i] = d.cvel[1:]
+            self._com[i] = d.subtree_com[1]
+            warnings = int(d.warning.number[_BAD_WARNINGS].sum())
+            self._bad[i] = warnings > self._warnings[i]
+            self._warnings[i] = warnings
+        # Non-finite or absurd speeds: MuJoCo only resets on NaN / huge accelerations.
+        speed = np.abs(self.qvel[ids]).max(-1)
+        self._bad[ids] |= ~(speed < MAX_SPEED)
+
+    @property
+    def bodies(self) -> BodyState:
+        """Positions, rotation matrices and velocities of the 24 bodies in the world frame."""
+        ang = self._cvel[..., :3]
+        # cvel is the spatial velocity at the root subtree's centre of mass; move it to each
+        # body origin: v = v_com + w x (x_body - x_com).
+        r = self._xpos - self._com[:, None]
+        lin = self._cvel[..., 3:] + np.cross(ang, r)
+        return BodyState(pos=self._xpos, rot=self._xmat.reshape(*self._xmat.shape[:2], 3, 3),
+                         lin_vel=lin, ang_vel=ang, dof_pos=self.qpos[:, 7:], dof_vel=self.qvel[:, 6:])
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False)
+            self._pool = None

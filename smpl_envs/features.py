@@ -60,15 +60,23 @@ class BodyState:
 
 
 # ---------------------------------------------------------------------- rotations
+# R (row-major, 9) = outer(q, q) (16) @ _QUAT_TO_MAT: every entry of a unit quaternion's matrix
+# is a fixed combination of the products q_i q_j, so the conversion is two batched operations.
+_QUAT_TO_MAT = np.zeros((16, 9))
+for _entry, _terms in enumerate([
+    ((0, 0, 1), (1, 1, 1), (2, 2, -1), (3, 3, -1)), ((1, 2, 2), (0, 3, -2)), ((1, 3, 2), (0, 2, 2)),
+    ((1, 2, 2), (0, 3, 2)), ((0, 0, 1), (1, 1, -1), (2, 2, 1), (3, 3, -1)), ((2, 3, 2), (0, 1, -2)),
+    ((1, 3, 2), (0, 2, -2)), ((2, 3, 2), (0, 1, 2)), ((0, 0, 1), (1, 1, -1), (2, 2, -1), (3, 3, 1)),
+]):
+    for _i, _j, _c in _terms:
+        _QUAT_TO_MAT[4 * _i + _j, _entry] = _c
+
+
 def rotmat_from_quat(q):
     """(..., 4) unit quaternions (w, x, y, z) -> (..., 3, 3) rotation matrices."""
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    m = xp(q).stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1)
-    return m.reshape(*q.shape[:-1], 3, 3)
+    m = xp(q)
+    outer = (q[..., :, None] * q[..., None, :]).reshape(*q.shape[:-1], 16)
+    return (outer @ _const(m, _QUAT_TO_MAT, q)).reshape(*q.shape[:-1], 3, 3)
 
 
 def rot6d(rot):
@@ -78,19 +86,25 @@ def rot6d(rot):
 
 def rotation_angle(a, b):
     """Angle (rad) of the relative rotation between matching rotation matrices a and b."""
-    m = xp(a, b)
     cos = ((a * b).sum(axis=(-1, -2)) - 1.0) * 0.5  # trace(a^T b) = sum of elementwise product
-    return m.arccos(m.clip(cos, -1.0, 1.0))
+    return xp(a, b).arccos(cos.clip(-1.0, 1.0))
+
+
+# H (row-major, 9) = (cos, sin) @ _HEADING_BASIS + _HEADING_CONST: a rotation about z.
+_HEADING_BASIS = np.array([[1, 0, 0, 0, 1, 0, 0, 0, 0], [0, -1, 0, 1, 0, 0, 0, 0, 0]], float)
+_HEADING_CONST = np.array([0, 0, 0, 0, 0, 0, 0, 0, 1], float)
+
+
+def _const(m, table, like):
+    return table if m is np else m.as_tensor(table, dtype=like.dtype, device=like.device)
 
 
 def heading_rotation(root_rot):
     """(N, 3, 3) rotations about world z by the yaw of each root's x-axis."""
     m = xp(root_rot)
-    cx, sx = root_rot[:, 0, 0], root_rot[:, 1, 0]
-    norm = m.sqrt(cx * cx + sx * sx) + 1e-9
-    c, s = cx / norm, sx / norm
-    zero, one = c * 0, c * 0 + 1
-    return m.stack([c, -s, zero, s, c, zero, zero, zero, one], -1).reshape(-1, 3, 3)
+    x = root_rot[:, :2, 0]
+    cs = x / (m.sqrt((x * x).sum(axis=-1))[:, None] + 1e-9)
+    return (cs @ _const(m, _HEADING_BASIS, cs) + _const(m, _HEADING_CONST, cs)).reshape(-1, 3, 3)
 
 
 def to_heading(v, heading):
@@ -107,32 +121,32 @@ def rot_to_heading(rot, heading):
 # ---------------------------------------------------------------------- observations
 SELF_OBS_LAYOUT = (
     ("root_height", 1, "pelvis height above the floor (m)"),
-    ("body_pos", 69, "bodies 1-23 relative to the pelvis, heading frame (m)"),
-    ("body_rot", 144, "24 body rotations, heading frame, 6D"),
-    ("body_lin_vel", 72, "24 body linear velocities, heading frame (m/s)"),
-    ("body_ang_vel", 72, "24 body angular velocities, heading frame (rad/s)"),
+    ("body_pos", 69, "bodies 1-23 relative to the pelvis (m)"),
+    ("body_lin_vel", 72, "24 body linear velocities (m/s)"),
+    ("body_ang_vel", 72, "24 body angular velocities (rad/s)"),
+    ("body_rot", 144, "24 body rotations, 6D"),
 )
 IMITATION_GOAL_LAYOUT = (
-    ("diff_rot", 144, "reference (-) simulated rotation per body, heading frame, 6D"),
-    ("diff_pos", 72, "reference - simulated body position, heading frame (m)"),
-    ("diff_lin_vel", 72, "reference - simulated linear velocity, heading frame (m/s)"),
-    ("diff_ang_vel", 72, "reference - simulated angular velocity, heading frame (rad/s)"),
-    ("ref_rot", 144, "reference rotation per body, heading frame, 6D"),
-    ("ref_pos", 72, "reference body position relative to the simulated pelvis, heading frame (m)"),
+    ("diff_pos", 72, "reference - simulated body positions (m)"),
+    ("diff_lin_vel", 72, "reference - simulated linear velocities (m/s)"),
+    ("diff_ang_vel", 72, "reference - simulated angular velocities (rad/s)"),
+    ("ref_pos", 72, "reference body positions relative to the simulated pelvis (m)"),
+    ("diff_rot", 144, "reference rotation (-) simulated rotation per body, 6D"),
+    ("ref_rot", 144, "reference body rotations, 6D"),
 )
 KEYPOINT_GOAL_LAYOUT = (
-    ("diff_pos", 72, "reference - simulated body position, heading frame (m)"),
-    ("diff_lin_vel", 72, "reference - simulated linear velocity, heading frame (m/s)"),
-    ("ref_pos", 72, "reference body position relative to the simulated pelvis, heading frame (m)"),
+    ("diff_pos", 72, "reference - simulated body positions (m)"),
+    ("diff_lin_vel", 72, "reference - simulated linear velocities (m/s)"),
+    ("ref_pos", 72, "reference body positions relative to the simulated pelvis (m)"),
 )
 AMP_LAYOUT = (
     ("root_height", 1, "pelvis height (m)"),
     ("root_rot", 6, "pelvis rotation, heading frame, 6D"),
     ("root_lin_vel", 3, "pelvis linear velocity, heading frame (m/s)"),
     ("root_ang_vel", 3, "pelvis angular velocity, heading frame (rad/s)"),
+    ("key_body_pos", 12, "ankles and hands relative to the pelvis, heading frame (m)"),
     ("joint_rot", 138, "23 joint rotations relative to the parent body, 6D"),
     ("dof_vel", 69, "hinge rates (rad/s)"),
-    ("key_body_pos", 12, "ankles and hands relative to the pelvis, heading frame (m)"),
 )
 
 
@@ -141,62 +155,69 @@ def layout_size(layout) -> int:
 
 
 def self_obs(s: BodyState, heading):
-    """Proprioception (N, 358), layout SELF_OBS_LAYOUT."""
+    """Proprioception (N, 358), heading frame, layout SELF_OBS_LAYOUT."""
     m = xp(s.pos)
     n = s.pos.shape[0]
+    vectors = m.concatenate([s.pos[:, 1:] - s.pos[:, :1], s.lin_vel, s.ang_vel], 1)
+    return m.concatenate([s.pos[:, 0, 2:3], to_heading(vectors, heading).reshape(n, -1),
+                          rot6d(rot_to_heading(s.rot, heading)).reshape(n, -1)], -1)
+
+
+def tracking_obs(s: BodyState, ref: BodyState, goal: str = "rotation", heading=None):
+    """Self observation followed by the imitation goal towards `ref`, heading frame:
+    (N, 358 + 576) for goal="rotation" (IMITATION_GOAL_LAYOUT), (N, 358 + 216) for "keypoint"
+    (KEYPOINT_GOAL_LAYOUT). The first 358 columns equal `self_obs`.
+
+    Written as one heading transform of every vector and one of every rotation, because on the
+    CPU a single env's step time is dominated by the number of array operations, not their size.
+    """
+    m = xp(s.pos)
+    n, nb = s.pos.shape[:2]
+    heading = heading_rotation(s.rot[:, 0]) if heading is None else heading
     root = s.pos[:, :1]
-    return m.concatenate([
-        s.pos[:, 0, 2:3],
-        to_heading(s.pos[:, 1:] - root, heading).reshape(n, -1),
-        rot6d(rot_to_heading(s.rot, heading)).reshape(n, -1),
-        to_heading(s.lin_vel, heading).reshape(n, -1),
-        to_heading(s.ang_vel, heading).reshape(n, -1),
-    ], -1)
+    vectors = [s.pos[:, 1:] - root, s.lin_vel, s.ang_vel, ref.pos - s.pos, ref.lin_vel - s.lin_vel]
+    if goal == "rotation":
+        vectors.append(ref.ang_vel - s.ang_vel)
+    vectors.append(ref.pos - root)
+    v = to_heading(m.concatenate(vectors, 1), heading).reshape(n, -1)
+    split = 3 * (3 * nb - 1)  # pos (23) + lin vel + ang vel (24 each) belong to the self part
+    if goal == "keypoint":
+        return m.concatenate([s.pos[:, 0, 2:3], v[:, :split],
+                              rot6d(rot_to_heading(s.rot, heading)).reshape(n, -1), v[:, split:]], -1)
+    if goal != "rotation":
+        raise ValueError(f"goal must be 'rotation' or 'keypoint', got {goal!r}")
+    rots = rot_to_heading(m.concatenate([s.rot, ref.rot], 1), heading)
+    sim_rot, ref_rot = rots[:, :nb], rots[:, nb:]
+    diff = ref_rot @ sim_rot.swapaxes(-1, -2)  # = H^T R_ref R_sim^T H
+    return m.concatenate([s.pos[:, 0, 2:3], v[:, :split], rot6d(sim_rot).reshape(n, -1), v[:, split:],
+                          rot6d(diff).reshape(n, -1), rot6d(ref_rot).reshape(n, -1)], -1)
 
 
-def imitation_goal(s: BodyState, ref: BodyState, heading):
-    """Rotation-based imitation goal (N, 576), layout IMITATION_GOAL_LAYOUT (blocks of 24 bodies)."""
-    m = xp(s.pos)
-    n = s.pos.shape[0]
-    diff_rot = rot_to_heading(ref.rot @ s.rot.swapaxes(-1, -2), heading) @ heading[:, None]
-    return m.concatenate([
-        rot6d(diff_rot).reshape(n, -1),
-        to_heading(ref.pos - s.pos, heading).reshape(n, -1),
-        to_heading(ref.lin_vel - s.lin_vel, heading).reshape(n, -1),
-        to_heading(ref.ang_vel - s.ang_vel, heading).reshape(n, -1),
-        rot6d(rot_to_heading(ref.rot, heading)).reshape(n, -1),
-        to_heading(ref.pos - s.pos[:, :1], heading).reshape(n, -1),
-    ], -1)
+def _self_obs_columns() -> np.ndarray:
+    # Columns of the self observation that the AMP features reuse (same quantities, same frame).
+    at = {name: start for name, start in zip([n for n, _, _ in SELF_OBS_LAYOUT],
+                                             np.cumsum([0] + [k for _, k, _ in SELF_OBS_LAYOUT]))}
+    key = [at["body_pos"] + 3 * (b - 1) + np.arange(3) for b in KEY_BODIES]
+    return np.concatenate([[at["root_height"]], at["body_rot"] + np.arange(6),
+                           at["body_lin_vel"] + np.arange(3), at["body_ang_vel"] + np.arange(3), *key])
 
 
-def keypoint_goal(s: BodyState, ref: BodyState, heading):
-    """Keypoint-only imitation goal (N, 216), layout KEYPOINT_GOAL_LAYOUT."""
-    m = xp(s.pos)
-    n = s.pos.shape[0]
-    return m.concatenate([
-        to_heading(ref.pos - s.pos, heading).reshape(n, -1),
-        to_heading(ref.lin_vel - s.lin_vel, heading).reshape(n, -1),
-        to_heading(ref.pos - s.pos[:, :1], heading).reshape(n, -1),
-    ], -1)
+AMP_FROM_SELF_OBS = _self_obs_columns()
 
 
-def amp_features(s: BodyState):
+def amp_features(s: BodyState, heading=None, proprio=None):
     """Per-frame discriminator features (N, 232), layout AMP_LAYOUT. The same function serves the
-    simulated humanoid and the reference motion (`MotionLib.amp_features`)."""
+    simulated humanoid and the reference motion (`MotionLib.amp_features`).
+
+    The root and key-body terms are columns of the self observation; pass `proprio` (the
+    `self_obs` of `s`, e.g. the first 358 observation columns) to reuse it instead of recomputing.
+    """
     m = xp(s.pos)
     n = s.pos.shape[0]
-    heading = heading_rotation(s.rot[:, 0])
-    root_rot = rot_to_heading(s.rot[:, :1], heading)
+    if proprio is None:
+        proprio = self_obs(s, heading_rotation(s.rot[:, 0]) if heading is None else heading)
     local_rot = s.rot[:, _PARENT_IDX].swapaxes(-1, -2) @ s.rot[:, 1:]
-    return m.concatenate([
-        s.pos[:, 0, 2:3],
-        rot6d(root_rot).reshape(n, -1),
-        to_heading(s.lin_vel[:, 0], heading),
-        to_heading(s.ang_vel[:, 0], heading),
-        rot6d(local_rot).reshape(n, -1),
-        s.dof_vel,
-        to_heading(s.pos[:, list(KEY_BODIES)] - s.pos[:, :1], heading).reshape(n, -1),
-    ], -1)
+    return m.concatenate([proprio[:, AMP_FROM_SELF_OBS], rot6d(local_rot).reshape(n, -1), s.dof_vel], -1)
 
 
 def layout_slices(layouts: dict[str, tuple]) -> dict[str, slice]:

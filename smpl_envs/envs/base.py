@@ -2,7 +2,7 @@
 
 `HumanoidVecEnv` owns the physics (`smpl_envs.sim.CPUSim`), the reference motions (`MotionLib`)
 and the episode bookkeeping (which clip and frame each world follows, autoreset). A task subclass
-supplies three batched functions of the state: `_observe`, `_reward`, `_terminated`.
+supplies two batched functions of the state: `_observe` and `_evaluate` (reward, termination).
 
 Time: the policy acts at the motion library's 30 Hz; each action is held for `substeps` physics
 steps (4 x 1/120 s). Episodes start on an exact reference frame (reference state initialisation)
@@ -19,13 +19,14 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ..features import BodyState, amp_features
+from ..features import SELF_OBS_LAYOUT, BodyState, amp_features, heading_rotation, layout_size
 from ..humanoid.builder import build_humanoid
 from ..humanoid.skeleton import ACTION_SCALE
 from ..motion.library import MotionLib
 from ..sim import CPUSim
 
 CONTROL_FPS = 30
+PROPRIO_DIM = layout_size(SELF_OBS_LAYOUT)  # every task's observation starts with the self observation
 
 
 def load_motions(motions: str | os.PathLike | list | MotionLib, progress: bool = False) -> MotionLib:
@@ -50,7 +51,7 @@ class HumanoidVecEnv(VectorEnv):
     """N simulated SMPL humanoids following reference motions, stepped together.
 
     Subclasses set `single_observation_space` size via `obs_dim` and implement `_observe`,
-    `_reward`, `_terminated`. See the task modules for their observation layouts.
+    `_evaluate` (reward, its terms, termination). See the task modules for their layouts.
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": CONTROL_FPS,
@@ -103,15 +104,14 @@ class HumanoidVecEnv(VectorEnv):
         self.end_frame = np.zeros(n, np.int64)   # last frame of each world's clip
         self.elapsed = np.zeros(n, np.int64)     # steps since the world's last reset
         self._needs_reset = np.zeros(n, bool)
+        self._ref_cache = None
 
     # ------------------------------------------------------------------ task interface
-    def _observe(self, sim: BodyState, ref_next: BodyState) -> np.ndarray:
+    def _observe(self, sim: BodyState, ref_next: BodyState, heading: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
-    def _reward(self, sim: BodyState, ref: BodyState) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        raise NotImplementedError
-
-    def _terminated(self, sim: BodyState, ref: BodyState) -> np.ndarray:
+    def _evaluate(self, sim: BodyState, ref: BodyState) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+        """(reward (N,), reward terms {name: (N,)}, terminated (N,) bool) of the current state."""
         raise NotImplementedError
 
     # ------------------------------------------------------------------ gymnasium API
@@ -132,8 +132,10 @@ class HumanoidVecEnv(VectorEnv):
         ids = np.arange(self.num_envs) if mask is None else np.flatnonzero(np.asarray(mask, bool))
         self._reset_worlds(ids, motion_ids, start)
         state = self.sim.bodies
-        obs = self._observe(state, self._ref_next())
-        obs, info = self._finish_obs(obs), self._info(state, None, np.zeros(self.num_envs, bool))
+        heading = heading_rotation(state.rot[:, 0])
+        obs = self._observe(state, self._ref_next(), heading)
+        info = self._info(state, self._reference(self.frame), obs[:, :PROPRIO_DIM], None, np.zeros(self.num_envs, bool))
+        obs = self._finish_obs(obs)
         if mask is not None:
             # Worlds left running keep their observation; only the reset ones change.
             info["_reset"] = np.zeros(self.num_envs, bool)
@@ -144,31 +146,44 @@ class HumanoidVecEnv(VectorEnv):
         actions = np.asarray(actions, dtype=np.float64)
         if actions.shape != (self.num_envs, self.model.nu):
             raise ValueError(f"actions must have shape {(self.num_envs, self.model.nu)}, got {actions.shape}")
-        bad = ~np.isfinite(actions).all(-1)
-        if bad.any():
-            raise ValueError(f"actions contain NaN or inf in worlds {np.flatnonzero(bad).tolist()[:10]}")
+        if not np.isfinite(actions).all():
+            bad = np.flatnonzero(~np.isfinite(actions).all(-1))
+            raise ValueError(f"actions contain NaN or inf in worlds {bad.tolist()[:10]}")
 
-        resetting = self._needs_reset.copy()
-        if resetting.any():  # NEXT_STEP autoreset: these worlds restart and ignore their action
-            self._reset_worlds(np.flatnonzero(resetting), None, self.start)
-        ctrl = np.clip(actions, -1.0, 1.0) * self.action_scale
-        diverged = self.sim.step(ctrl, active=~resetting) & ~resetting
+        # NEXT_STEP autoreset: worlds that ended last step restart now and ignore their action.
+        # The common case (nobody restarting) skips every mask below.
+        running = None
+        if self._needs_reset.any():
+            running = ~self._needs_reset
+            self._reset_worlds(np.flatnonzero(self._needs_reset), None, self.start)
+        diverged = self.sim.step(actions.clip(-1.0, 1.0) * self.action_scale, active=running)
+        if running is None:
+            np.minimum(self.frame + 1, self.end_frame, out=self.frame)
+            self.elapsed += 1
+        else:
+            diverged &= running
+            self.frame[running] = np.minimum(self.frame[running] + 1, self.end_frame[running])
+            self.elapsed[running] += 1
 
-        running = ~resetting
-        self.frame[running] = np.minimum(self.frame[running] + 1, self.end_frame[running])
-        self.elapsed[running] += 1
         state = self.sim.bodies
-        ref = self.motion_lib.body_state(self.frame)
-        reward, terms = self._reward(state, ref)
-        terminated = (self._terminated(state, ref) | diverged) & running
-        truncated = (self.frame >= self.end_frame) & running & ~terminated
+        heading = heading_rotation(state.rot[:, 0])
+        ref = self._reference(self.frame)
+        reward, terms, terminated = self._evaluate(state, ref)
+        terminated = terminated | diverged
+        truncated = self.frame >= self.end_frame
         if self.max_episode_steps is not None:
-            truncated |= (self.elapsed >= self.max_episode_steps) & running & ~terminated
-        reward = np.where(running & ~diverged, reward, 0.0)
-        for k in terms:
-            terms[k] = np.where(running & ~diverged, terms[k], 0.0)
-        obs = self._finish_obs(self._observe(state, self._ref_next()))
-        info = self._info(state, terms, diverged)
+            truncated |= self.elapsed >= self.max_episode_steps
+        if running is not None or diverged.any():
+            valid = ~diverged if running is None else running & ~diverged
+            reward = np.where(valid, reward, 0.0)
+            terms = {k: np.where(valid, v, 0.0) for k, v in terms.items()}
+            if running is not None:
+                terminated &= running
+                truncated &= running
+        truncated &= ~terminated
+        obs = self._observe(state, self._ref_next(), heading)
+        info = self._info(state, ref, obs[:, :PROPRIO_DIM], terms, diverged)
+        obs = self._finish_obs(obs)
 
         done = terminated | truncated
         if self.autoreset_mode == AutoresetMode.NEXT_STEP:
@@ -179,11 +194,14 @@ class HumanoidVecEnv(VectorEnv):
             info["final_info"], info["_final_info"] = {k: v.copy() for k, v in info.items()}, done
             self._reset_worlds(ids, None, self.start)
             state = self.sim.bodies
-            obs[ids] = self._finish_obs(self._observe(state[ids], self.motion_lib.body_state(self._next_frame()[ids])))
-            fresh = self._info(state, None, np.zeros(self.num_envs, bool))
+            heading = heading_rotation(state.rot[:, 0])
+            fresh_obs = self._observe(state, self._ref_next(), heading)
+            fresh = self._info(state, self._reference(self.frame), fresh_obs[:, :PROPRIO_DIM], None,
+                               np.zeros(self.num_envs, bool))
+            obs[ids] = self._finish_obs(fresh_obs[ids])
             for k, v in fresh.items():
                 info[k][ids] = v[ids]
-        return obs, reward.astype(np.float64), terminated, truncated, info
+        return obs, np.asarray(reward, np.float64), terminated, truncated, info
 
     # ------------------------------------------------------------------ internals
     def _reset_worlds(self, ids: np.ndarray, motion_ids, start: str) -> None:
@@ -219,25 +237,35 @@ class HumanoidVecEnv(VectorEnv):
         return np.minimum(self.frame + 1, self.end_frame)
 
     def _ref_next(self) -> BodyState:
-        return self.motion_lib.body_state(self._next_frame())
+        return self._reference(self._next_frame())
+
+    def _reference(self, frames: np.ndarray) -> BodyState:
+        # The frames observed as "next" in one step are the frames rewarded in the following one.
+        cached = self._ref_cache
+        if cached is not None and np.array_equal(cached[0], frames):
+            return cached[1]
+        ref = self.motion_lib.body_state(frames)
+        self._ref_cache = (frames.copy(), ref)
+        return ref
 
     def _finish_obs(self, obs: np.ndarray) -> np.ndarray:
         # A diverged world's state may be garbage; keep the batch finite for the learner.
-        obs = np.asarray(obs, np.float32)
-        if not np.isfinite(obs).all():
+        obs = obs.astype(np.float32)
+        if not np.isfinite(obs.sum()):
             obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
         return obs
 
-    def _info(self, state: BodyState, terms: dict | None, diverged: np.ndarray) -> dict[str, Any]:
+    def _info(self, state: BodyState, ref: BodyState, proprio, terms: dict | None,
+              diverged: np.ndarray) -> dict[str, Any]:
         lib = self.motion_lib
         info = {f"reward_{k}": v for k, v in (terms or {}).items()}
         info.update(
             motion_id=self.motion_id.copy(),
-            motion_time=(self.frame - lib.starts[self.motion_id]) / lib.fps,
+            motion_time=(self.frame - lib.starts[self.motion_id]) * (1.0 / lib.fps),
             body_pos=state.pos.astype(np.float32),
-            ref_body_pos=lib.body_pos[self.frame].copy(),
-            diverged=diverged.copy(),
-            amp_obs=amp_features(state).astype(np.float32),
+            ref_body_pos=ref.pos,
+            diverged=diverged,
+            amp_obs=amp_features(state, proprio=proprio).astype(np.float32),
         )
         return info
 

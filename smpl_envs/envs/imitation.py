@@ -13,15 +13,15 @@ reference frame, the one the action should reach):
 |---|---|---|---|
 | 0:1 | 1 | pelvis height | same |
 | 1:70 | 69 | bodies 1-23 relative to the pelvis | same |
-| 70:214 | 144 | 24 body rotations (6D) | same |
-| 214:286 | 72 | 24 body linear velocities | same |
-| 286:358 | 72 | 24 body angular velocities | same |
-| 358:502 / 358:430 | 144 / 72 | ref rotation (-) sim rotation, t+1 (6D) | ref - sim position, t+1 |
-| 502:574 / 430:502 | 72 | ref - sim position, t+1 | ref - sim linear velocity, t+1 |
-| 574:646 / 502:574 | 72 | ref - sim linear velocity, t+1 | ref position rel. sim pelvis, t+1 |
-| 646:718 | 72 | ref - sim angular velocity, t+1 | - |
-| 718:862 | 144 | ref rotation, t+1 (6D) | - |
-| 862:934 | 72 | ref position rel. sim pelvis, t+1 | - |
+| 70:142 | 72 | 24 body linear velocities | same |
+| 142:214 | 72 | 24 body angular velocities | same |
+| 214:358 | 144 | 24 body rotations (6D) | same |
+| 358:430 | 72 | ref - sim position, t+1 | same |
+| 430:502 | 72 | ref - sim linear velocity, t+1 | same |
+| 502:574 | 72 | ref - sim angular velocity, t+1 | ref position rel. sim pelvis, t+1 |
+| 574:646 | 72 | ref position rel. sim pelvis, t+1 | - |
+| 646:790 | 144 | ref rotation (-) sim rotation, t+1 (6D) | - |
+| 790:934 | 144 | ref rotation, t+1 (6D) | - |
 
 Totals: 934 (Imitation), 574 (KeypointImitation). Blocks over bodies follow BODY_NAMES; 6D is
 the first two columns of the rotation matrix. `env.unwrapped.observation_structure` gives the
@@ -44,13 +44,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..features import (IMITATION_GOAL_LAYOUT, KEYPOINT_GOAL_LAYOUT, SELF_OBS_LAYOUT, BodyState,
-                        heading_rotation, imitation_goal, keypoint_goal, layout_size, layout_slices,
-                        rotation_angle, self_obs, xp)
+                        layout_size, layout_slices, rotation_angle, tracking_obs, xp)
 from ..humanoid.skeleton import BODY_NAMES
 from .base import HumanoidVecEnv, SingleEnv
 
 REWARD_WEIGHTS = {"pos": 0.5, "rot": 0.3, "lin_vel": 0.1, "ang_vel": 0.1}
 REWARD_SCALES = {"pos": 100.0, "rot": 10.0, "lin_vel": 0.1, "ang_vel": 0.1}
+TERMS = ("pos", "rot", "lin_vel", "ang_vel")
 ENERGY_WEIGHT = 0.0005
 TERMINATION_DISTANCE = 0.5
 # Feet are left out of the termination test: their errors say little about a fall.
@@ -62,40 +62,37 @@ def imitation_reward(sim: BodyState, ref: BodyState, actuator_force, weights=REW
                      scales=REWARD_SCALES, energy_weight=ENERGY_WEIGHT):
     """(total (N,), {term: (N,)}) for the imitation reward defined in the module docstring."""
     m = xp(sim.pos)
-    errors = {
-        "pos": ((ref.pos - sim.pos) ** 2).mean(axis=(-1, -2)),
-        "rot": (rotation_angle(ref.rot, sim.rot) ** 2).mean(axis=-1),
-        "lin_vel": ((ref.lin_vel - sim.lin_vel) ** 2).mean(axis=(-1, -2)),
-        "ang_vel": ((ref.ang_vel - sim.ang_vel) ** 2).mean(axis=(-1, -2)),
-    }
-    terms = {k: weights[k] * m.exp(-scales[k] * errors[k]) for k in errors}
-    terms["energy"] = -energy_weight * m.abs(actuator_force * sim.dof_vel).sum(axis=-1)
-    total = terms["pos"] + terms["rot"] + terms["lin_vel"] + terms["ang_vel"] + terms["energy"]
-    return total, terms
+    n, nb = sim.pos.shape[:2]
+    # One reduction for the three vector errors: mean over bodies and xyz of squared differences.
+    diff = m.concatenate([ref.pos - sim.pos, ref.lin_vel - sim.lin_vel, ref.ang_vel - sim.ang_vel], 1)
+    sq = (diff * diff).reshape(n, 3, -1).sum(axis=-1) * (1.0 / (3 * nb))
+    angle = rotation_angle(ref.rot, sim.rot)
+    errors = m.concatenate([sq[:, :1], (angle * angle).sum(axis=-1)[:, None] * (1.0 / nb), sq[:, 1:]], -1)
+    w = np.array([weights[k] for k in TERMS])
+    k = np.array([-scales[k] for k in TERMS])
+    if m is not np:
+        w, k = (m.as_tensor(x, dtype=errors.dtype, device=errors.device) for x in (w, k))
+    terms = m.exp(errors * k) * w
+    energy = -energy_weight * m.abs(actuator_force * sim.dof_vel).sum(axis=-1)
+    out = {name: terms[:, i] for i, name in enumerate(TERMS)}
+    out["energy"] = energy
+    return terms.sum(axis=-1) + energy, out
 
 
 def mean_body_distance(sim: BodyState, ref: BodyState, bodies=None):
-    """(N,) mean Euclidean distance (m) between simulated and reference bodies."""
+    """(N,) mean Euclidean distance (m) between simulated and reference bodies (all, or the
+    index array `bodies`)."""
     m = xp(sim.pos)
-    d = ref.pos - sim.pos if bodies is None else ref.pos[:, bodies] - sim.pos[:, bodies]
-    return m.sqrt((d * d).sum(axis=-1)).mean(axis=-1)
+    d = ref.pos - sim.pos
+    dist = m.sqrt((d * d).sum(axis=-1))
+    if bodies is None:
+        return dist.sum(axis=-1) * (1.0 / dist.shape[-1])
+    return dist[:, bodies].sum(axis=-1) * (1.0 / len(bodies))
 
 
 def imitation_terminated(sim: BodyState, ref: BodyState, distance=TERMINATION_DISTANCE):
     """(N,) relaxed early termination: feet-excluded mean body distance above `distance`."""
     return mean_body_distance(sim, ref, TERMINATION_BODIES) > distance
-
-
-def imitation_obs(sim: BodyState, ref_next: BodyState):
-    m = xp(sim.pos)
-    heading = heading_rotation(sim.rot[:, 0])
-    return m.concatenate([self_obs(sim, heading), imitation_goal(sim, ref_next, heading)], -1)
-
-
-def keypoint_imitation_obs(sim: BodyState, ref_next: BodyState):
-    m = xp(sim.pos)
-    heading = heading_rotation(sim.rot[:, 0])
-    return m.concatenate([self_obs(sim, heading), keypoint_goal(sim, ref_next, heading)], -1)
 
 
 # ---------------------------------------------------------------------- environments
@@ -111,7 +108,7 @@ class ImitationVecEnv(HumanoidVecEnv):
 
     goal_layout = IMITATION_GOAL_LAYOUT
     obs_dim = layout_size(SELF_OBS_LAYOUT) + layout_size(IMITATION_GOAL_LAYOUT)
-    _obs_fn = staticmethod(imitation_obs)
+    goal = "rotation"
 
     def __init__(self, num_envs: int = 1, *, reward_weights: dict | None = None,
                  reward_scales: dict | None = None, energy_weight: float = ENERGY_WEIGHT,
@@ -122,17 +119,15 @@ class ImitationVecEnv(HumanoidVecEnv):
         self.termination_distance = termination_distance
         super().__init__(num_envs, **kwargs)
 
-    def _observe(self, sim, ref_next):
-        return self._obs_fn(sim, ref_next)
+    def _observe(self, sim, ref_next, heading):
+        return tracking_obs(sim, ref_next, self.goal, heading)
 
-    def _reward(self, sim, ref):
-        return imitation_reward(sim, ref, self.sim.actuator_force, self.reward_weights,
-                                self.reward_scales, self.energy_weight)
-
-    def _terminated(self, sim, ref):
+    def _evaluate(self, sim, ref):
+        reward, terms = imitation_reward(sim, ref, self.sim.actuator_force, self.reward_weights,
+                                         self.reward_scales, self.energy_weight)
         if self.termination_distance is None:
-            return np.zeros(self.num_envs, bool)
-        return imitation_terminated(sim, ref, self.termination_distance)
+            return reward, terms, np.zeros(self.num_envs, bool)
+        return reward, terms, imitation_terminated(sim, ref, self.termination_distance)
 
     @property
     def observation_structure(self) -> dict[str, slice]:
@@ -145,7 +140,7 @@ class KeypointImitationVecEnv(ImitationVecEnv):
 
     goal_layout = KEYPOINT_GOAL_LAYOUT
     obs_dim = layout_size(SELF_OBS_LAYOUT) + layout_size(KEYPOINT_GOAL_LAYOUT)
-    _obs_fn = staticmethod(keypoint_imitation_obs)
+    goal = "keypoint"
 
 
 class ImitationEnv(SingleEnv):

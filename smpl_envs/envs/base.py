@@ -26,6 +26,8 @@ from ..motion.library import MotionLib
 from ..sim import CPUSim
 
 CONTROL_FPS = 30
+# "human" opens MuJoCo's viewer, so it is only offered where a display exists.
+RENDER_MODES = ["rgb_array"] + (["human"] if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") else [])
 PROPRIO_DIM = layout_size(SELF_OBS_LAYOUT)  # every task's observation starts with the self observation
 
 
@@ -54,7 +56,7 @@ class HumanoidVecEnv(VectorEnv):
     `_evaluate` (reward, its terms, termination). See the task modules for their layouts.
     """
 
-    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": CONTROL_FPS,
+    metadata = {"render_modes": RENDER_MODES, "render_fps": CONTROL_FPS,
                 "autoreset_mode": AutoresetMode.NEXT_STEP}
     obs_dim: int = 0
 
@@ -317,13 +319,13 @@ class SingleEnv(gym.Env):
     implementation. Episodes end as the task says; the caller resets (no autoreset)."""
 
     vec_class: type[HumanoidVecEnv] = HumanoidVecEnv
+    metadata = {"render_modes": RENDER_MODES, "render_fps": CONTROL_FPS}
 
     def __init__(self, render_mode: str | None = None, **kwargs):
         for bad in ("num_envs", "autoreset_mode", "render_world"):
             if bad in kwargs:
                 raise TypeError(f"{bad!r} is for gym.make_vec, not gym.make")
         self.vec = self.vec_class(1, autoreset_mode=AutoresetMode.DISABLED, render_mode=render_mode, **kwargs)
-        self.metadata = {"render_modes": self.vec.metadata["render_modes"], "render_fps": CONTROL_FPS}
         self.render_mode = render_mode
         self.action_space = self.vec.single_action_space
         self.observation_space = self.vec.single_observation_space

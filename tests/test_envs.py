@@ -229,3 +229,14 @@ def test_stable_baselines3_ppo_trains(env_id, tmp_path):
     model.save(tmp_path / "ppo")
     action, _ = sb3.PPO.load(tmp_path / "ppo", device="cpu").predict(env.reset(seed=0)[0], deterministic=True)
     assert action.shape == (69,) and np.isfinite(action).all()
+
+
+def test_world_mujoco_resets_is_reported_as_diverged():
+    """MuJoCo silently resets a world after a NaN; the sim must report it, not carry on."""
+    sim = CPUSim(smpl_envs.humanoid.build_humanoid(), 2, substeps=4)
+    sim.step(np.zeros((2, 69)))
+    sim.datas[0].qacc_warmstart[:] = np.nan
+    sim.datas[0].qpos[3] = np.nan  # MuJoCo's mj_checkPos resets this world on the next substep
+    bad = sim.step(np.zeros((2, 69)))
+    assert bad.tolist() == [True, False]
+    assert not sim.step(np.zeros((2, 69))).any()

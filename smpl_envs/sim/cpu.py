@@ -25,8 +25,6 @@ from ..features import BodyState
 
 # Speeds no humanoid motion reaches (m/s, rad/s): treat them as a diverged simulation.
 MAX_SPEED = 1.0e3
-_BAD_WARNINGS = [int(mujoco.mjtWarning.mjWARN_BADQPOS), int(mujoco.mjtWarning.mjWARN_BADQVEL),
-                 int(mujoco.mjtWarning.mjWARN_BADQACC)]
 
 
 class CPUSim:
@@ -56,7 +54,8 @@ class CPUSim:
         self._xmat = np.zeros((n, nb, 9))
         self._cvel = np.zeros((n, nb, 6))
         self._com = np.zeros((n, 3))
-        self._warnings = np.zeros(n, np.int64)
+        self._time = np.zeros(n)
+        self._last_time = np.zeros(n)
         self._bad = np.zeros(n, bool)
         threads = num_threads or min(os.cpu_count() or 1, num_worlds)
         self.num_threads = max(1, min(threads, num_worlds))
@@ -64,7 +63,7 @@ class CPUSim:
         self._pool = ThreadPoolExecutor(self.num_threads) if self.num_threads > 1 else None
         for d in self.datas:
             mujoco.mj_step1(model, d)
-        self._gather(np.arange(n))
+        self._gather(np.arange(n), elapsed=0.0)
 
     # ------------------------------------------------------------------ state in and out
     def set_state(self, ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> None:
@@ -77,9 +76,10 @@ class CPUSim:
             d.qpos[:] = qpos[k]
             d.qvel[:] = qvel[k]
             mujoco.mj_step1(self.model, d)
+        self._last_time[ids] = 0.0
         self.ctrl[ids] = 0.0
         self.actuator_force[ids] = 0.0
-        self._gather(ids)
+        self._gather(ids, elapsed=0.0)
 
     def step(self, ctrl: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Apply `ctrl` (N, nu) for `substeps` physics steps in every world (or only where the
@@ -103,9 +103,9 @@ class CPUSim:
             for _ in range(self.substeps):
                 step2(m, d)
                 step1(m, d)
-        self._gather(ids)
+        self._gather(ids, elapsed=self.substeps * m.opt.timestep)
 
-    def _gather(self, ids: np.ndarray) -> None:
+    def _gather(self, ids: np.ndarray, elapsed: float) -> None:
         for i in ids:
             d = self.datas[i]
             self.qpos[i] = d.qpos
@@ -115,12 +115,13 @@ class CPUSim:
             self._xmat[i] = d.xmat[1:]
             self._cvel[i] = d.cvel[1:]
             self._com[i] = d.subtree_com[1]
-            warnings = int(d.warning.number[_BAD_WARNINGS].sum())
-            self._bad[i] = warnings > self._warnings[i]
-            self._warnings[i] = warnings
-        # Non-finite or absurd speeds: MuJoCo only resets on NaN / huge accelerations.
+            self._time[i] = d.time
+        # MuJoCo resets a world's data (time back to 0) on NaN or huge accelerations; beyond that,
+        # non-finite or absurd speeds also count as divergence.
         speed = np.abs(self.qvel[ids]).max(-1)
-        self._bad[ids] |= ~(speed < MAX_SPEED)
+        stepped = self._time[ids] - self._last_time[ids]
+        self._bad[ids] = (np.abs(stepped - elapsed) > 0.5 * self.model.opt.timestep) | ~(speed < MAX_SPEED)
+        self._last_time[ids] = self._time[ids]
 
     @property
     def bodies(self) -> BodyState:

@@ -38,7 +38,7 @@ from tqdm.auto import tqdm
 from . import metrics
 
 # evaluate() sets these when it makes the env itself; env_kwargs must not override them.
-_FORCED_KWARGS = ("num_envs", "motions", "termination_distance", "autoreset_mode", "start")
+_FORCED_KWARGS = ("num_envs", "motions", "termination_distance", "autoreset_mode")
 
 
 @dataclass

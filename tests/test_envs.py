@@ -185,7 +185,8 @@ def test_bad_input_gives_clear_errors():
         gym.make("SMPL/Imitation-v0", motions="no_such_clip")
 
 
-def test_diverged_world_ends_cleanly_and_others_continue():
+def test_diverged_world_ends_cleanly_and_others_continue(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs its warnings to ./MUJOCO_LOG.TXT
     env = gym.make_vec("SMPL/Imitation-v0", num_envs=2, motions="stand", termination_distance=None)
     env.reset(seed=0)
     env.sim.datas[1].qvel[:] = 1e6  # an exploding world
@@ -231,7 +232,8 @@ def test_stable_baselines3_ppo_trains(env_id, tmp_path):
     assert action.shape == (69,) and np.isfinite(action).all()
 
 
-def test_world_mujoco_resets_is_reported_as_diverged():
+def test_world_mujoco_resets_is_reported_as_diverged(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs its warnings to ./MUJOCO_LOG.TXT
     """MuJoCo silently resets a world after a NaN; the sim must report it, not carry on."""
     sim = CPUSim(smpl_envs.humanoid.build_humanoid(), 2, substeps=4)
     sim.step(np.zeros((2, 69)))

@@ -29,3 +29,16 @@ def _register() -> None:
 
 
 _register()
+
+
+def __getattr__(name):
+    # `smpl_envs.record(...)` and `smpl_envs.evaluate(...)` without importing MuJoCo at package import.
+    if name == "record":
+        from .render import record
+
+        return record
+    if name == "evaluate":
+        from .evaluation import evaluate
+
+        return evaluate
+    raise AttributeError(f"module 'smpl_envs' has no attribute {name!r}")

@@ -74,3 +74,82 @@ def write_strip(path: str | Path, frames: list[np.ndarray], columns: int | None 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     iio.imwrite(path, image)
     return image
+
+
+def record(env, policy, path: str | Path, *, steps: int | None = None, episodes: int | None = 1,
+           fps: float | None = None, seed: int | None = None, progress: bool = True, **make_kwargs) -> dict:
+    """Roll `policy` out in a single env and stream its frames to an mp4 at `path`.
+
+    env: an env id (made with `gym.make(env, render_mode="rgb_array", **make_kwargs)` and closed
+        afterwards) or a single env already made with render_mode="rgb_array" (left open).
+    policy: a callable obs -> action, or "zero" (all-zero actions: the humanoid collapses) or
+        "reference" (`env.unwrapped.reference_action()`: PD tracking of the reference).
+    Runs `episodes` episodes, or stops after `steps` steps in all, whichever comes first (None
+    lifts either bound). A frame is rendered after every reset and every step, so the video has
+    steps + episodes frames. `seed` seeds the first reset only; later resets continue its stream.
+
+    Returns {"path", "frames", "steps", "episodes" (started, the last one possibly cut short by
+    `steps`), "reward" (total), "returns" (per episode)}.
+    """
+    import gymnasium as gym
+    from tqdm.auto import tqdm
+
+    if steps is None and episodes is None:
+        raise ValueError("record needs a bound: pass steps=, episodes= or both")
+    if (steps is not None and steps < 1) or (episodes is not None and episodes < 1):
+        raise ValueError(f"steps and episodes must be >= 1 (or None), got steps={steps}, episodes={episodes}")
+    owned = isinstance(env, str)
+    if owned:
+        env = gym.make(env, render_mode="rgb_array", **make_kwargs)
+    elif make_kwargs:
+        raise TypeError(f"keyword arguments {sorted(make_kwargs)} are for gym.make and need an env id, not an env")
+    try:
+        # A vector env renders but steps batches; record drives one episode at a time.
+        if isinstance(env, gym.vector.VectorEnv) or not isinstance(env, gym.Env):
+            raise ValueError(f"record needs a single env from gym.make, got {type(env).__name__}")
+        if env.render_mode != "rgb_array":
+            raise ValueError(f"record needs an env made with render_mode='rgb_array', got render_mode={env.render_mode!r}")
+        act = _resolve_policy(env, policy)
+        path = Path(path)
+        stats = {"frames": 0, "steps": 0, "returns": []}
+
+        def frames():
+            bar = tqdm(total=steps, disable=not progress, unit="step", desc=f"recording {path.name}")
+            try:
+                # Check the step bound before each reset, so a rollout that ends exactly on it
+                # does not add a lone reset frame.
+                while (episodes is None or len(stats["returns"]) < episodes) and \
+                        (steps is None or stats["steps"] < steps):
+                    obs, _ = env.reset(seed=seed if not stats["returns"] else None)
+                    stats["returns"].append(0.0)
+                    yield env.render()
+                    done = False
+                    while not done and (steps is None or stats["steps"] < steps):
+                        obs, reward, terminated, truncated, _ = env.step(act(obs))
+                        done = terminated or truncated
+                        stats["returns"][-1] += float(reward)
+                        stats["steps"] += 1
+                        bar.update()
+                        yield env.render()
+            finally:
+                bar.close()
+
+        stats["frames"] = write_video(path, frames(), fps=fps or env.metadata.get("render_fps", 30))
+    finally:
+        if owned:
+            env.close()
+    return {"path": str(path), "frames": stats["frames"], "steps": stats["steps"],
+            "episodes": len(stats["returns"]), "reward": sum(stats["returns"]), "returns": stats["returns"]}
+
+
+def _resolve_policy(env, policy):
+    if callable(policy):
+        return policy
+    if policy == "zero":
+        space = env.action_space
+        return lambda obs: np.zeros(space.shape, space.dtype)
+    if policy == "reference":
+        if not hasattr(env.unwrapped, "reference_action"):
+            raise ValueError(f"policy='reference' needs an smpl_envs env; {type(env.unwrapped).__name__} has no reference_action()")
+        return lambda obs: env.unwrapped.reference_action()
+    raise ValueError(f"policy must be a callable obs -> action, 'zero' or 'reference', got {policy!r}")

@@ -27,7 +27,7 @@ from smpl_envs.render import record
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("clips", nargs="*", default=None, help=f"shipped clip names or motion files (default: all shipped clips, walk first)")
+    p.add_argument("clips", nargs="*", default=None, help="shipped clip names or motion files (default: all shipped clips, walk first)")
     p.add_argument("--out", default="out", help="output directory")
     p.add_argument("--num-envs", type=int, default=8, help="worlds stepped together during evaluation")
     p.add_argument("--size", type=int, nargs=2, default=(640, 480), metavar=("W", "H"))

@@ -55,9 +55,6 @@ class BodyState:
     def __getitem__(self, idx) -> "BodyState":
         return BodyState(**{f.name: getattr(self, f.name)[idx] for f in fields(self)})
 
-    def copy(self) -> "BodyState":
-        return BodyState(**{f.name: getattr(self, f.name).copy() for f in fields(self)})
-
 
 # ---------------------------------------------------------------------- rotations
 # R (row-major, 9) = outer(q, q) (16) @ _QUAT_TO_MAT: every entry of a unit quaternion's matrix

@@ -31,7 +31,8 @@ def test_structure_matches_the_reference(model):
 def test_pd_actuators_carry_the_listed_gains(model):
     np.testing.assert_allclose(model.actuator_gainprm[:, 0], KP)
     np.testing.assert_allclose(-model.actuator_biasprm[:, 1], KP)
-    np.testing.assert_allclose(-model.actuator_biasprm[:, 2], KD)
+    np.testing.assert_allclose(model.dof_damping[6:], KD)  # D term as implicit joint damping
+    np.testing.assert_allclose(model.actuator_biasprm[:, 2], 0.0)
     np.testing.assert_allclose(model.actuator_forcerange[:, 1], TORQUE_LIMIT)
     np.testing.assert_allclose(model.actuator_ctrlrange[:, 1], ACTION_SCALE)
     assert ACTION_SCALE[HINGE_NAMES.index("L_Knee_y")] == 5.0

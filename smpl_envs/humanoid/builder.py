@@ -108,8 +108,11 @@ def build_spec(
             body = bodies[PARENTS[i]].add_body(name=name, pos=skeleton.offsets[i])
             for k, axis in enumerate(HINGE_AXES):
                 j = 3 * (i - 1) + k
+                # The PD's D term is joint damping, not actuator kv: implicitfast integrates joint
+                # damping implicitly always, but skips the velocity derivative of force-limited
+                # actuators, and with kv on the actuator random actions diverge at this timestep.
                 joint = body.add_joint(name=f"{name}_{axis}", type=mujoco.mjtJoint.mjJNT_HINGE,
-                                       axis=np.eye(3)[k], armature=ARMATURE)
+                                       axis=np.eye(3)[k], armature=ARMATURE, damping=KD[j] * gain)
                 if limits is not None:
                     joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
                     joint.range = limits[j]
@@ -131,7 +134,7 @@ def build_spec(
         spec.add_exclude(bodyname1=a, bodyname2=b)
     for j, name in enumerate(f"{b}_{a}" for b in BODY_NAMES[1:] for a in HINGE_AXES):
         act = spec.add_actuator(name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
-        act.set_to_position(kp=KP[j] * gain, kv=KD[j] * gain)
+        act.set_to_position(kp=KP[j] * gain)
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.ctrlrange = [-ACTION_SCALE[j], ACTION_SCALE[j]]
         act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE

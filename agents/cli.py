@@ -1,0 +1,377 @@
+"""The `smpl-envs` command: train agents from recipes, then evaluate, record and plot their runs.
+
+    smpl-envs train demo_walk_ppo                       # runs/demo_walk_ppo-<time>/
+    smpl-envs train imitation_ppo --set env.num_envs=16 --set agent.hyperparams.learning_rate=3e-4
+    smpl-envs train imitation_amp --profile paper       # PHC's scale, for a GPU box
+    smpl-envs train --resume runs/imitation_ppo-<time> --set train.total_timesteps=8e6
+    smpl-envs eval runs/imitation_ppo-<time> --motions walk run
+    smpl-envs record runs/imitation_ppo-<time> --steps 600
+    smpl-envs plot runs/imitation_ppo-<time>
+
+A run directory holds config.yaml (the resolved recipe), checkpoints/ (ckpt_<steps>.pt, last.pt,
+best.pt), logs/ (progress.csv, tb/ for TensorBoard), videos/, and after training eval.json,
+eval.txt and curves.png. Mistakes in what the user typed end in one `error: ...` line and exit
+status 2; anything else is a bug and keeps its traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from .plot import EmptyLogError, plot_run, read_progress
+from .recipes import (RecipeError, apply_overrides, available_recipes, find_checkpoint, load_recipe,
+                      make_run_dir, read_config, run_dir_of)
+
+# Env kwargs that shape training episodes, or that evaluate()/record() choose themselves; the
+# rest (reward weights, substeps, threads ...) carry over from the run to its evaluation and video.
+TRAIN_ONLY_KWARGS = ("motions", "num_envs", "start", "max_episode_steps", "termination_distance",
+                     "autoreset_mode", "render_mode", "render_world")
+EVAL_KEY = "success_rate"
+# Settings a checkpoint fixes: its weights only fit these.
+FIXED_ON_RESUME = ("env.id", "agent.class") + tuple(
+    f"agent.hyperparams.{k}" for k in ("actor_hidden", "critic_hidden", "disc_hidden", "activation",
+                                       "disc_activation", "amp_num_frames"))
+INTERRUPTED = 130  # the shell's status for a SIGINT
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.threads is not None:
+            _set_threads(args.threads)
+        return args.func(args) or 0
+    except (RecipeError, EmptyLogError, FileNotFoundError) as e:
+        print(f"error: {' '.join(str(e).split())}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+# ---------------------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="smpl-envs", description=__doc__.split("\n\n")[0])
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--threads", type=int, default=None, metavar="N",
+                        help="torch CPU threads (default: torch's choice; 1 is often fastest on a shared or "
+                             "small CPU, where torch's thread pool fights the simulation for cores)")
+    common.add_argument("--no-progress", action="store_true", help="no progress bars")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("train", parents=[common], help="train an agent from a recipe",
+                       description="Train an agent from a recipe (tasks/<name>.yaml or a YAML path).")
+    p.add_argument("recipe", nargs="?", help=f"recipe name or YAML file; shipped: {', '.join(available_recipes())}")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a recipe setting by dotted key, e.g. agent.hyperparams.learning_rate=3e-4 "
+                        "(repeatable; with --resume: the budget, eval, video and hyperparameters)")
+    p.add_argument("--profile", help="apply one of the recipe's profiles (e.g. paper) before the --set overrides")
+    p.add_argument("--run-dir", type=Path, help="the run directory (default: RUNS_ROOT/<recipe>-<time>)")
+    p.add_argument("--runs-root", type=Path, default=Path("runs"), help="where new run directories go (runs)")
+    p.add_argument("--resume", type=Path, metavar="RUN_DIR",
+                   help="continue a run from its checkpoints/last.pt up to train.total_timesteps")
+    p.add_argument("--device", help="torch device (auto, cpu, cuda ...); overrides train.device")
+    p.add_argument("--quiet", action="store_true", help="no per-iteration log table on stdout")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("eval", parents=[common], help="evaluate a run or checkpoint (PHC protocol)")
+    p.add_argument("target", metavar="RUN_OR_CHECKPOINT")
+    p.add_argument("--motions", nargs="+", help="clip names or paths (default: the run's eval or training motions)")
+    p.add_argument("--num-envs", type=int, help="worlds evaluated at once (default: the run's eval.num_envs, or 8)")
+    p.add_argument("--threshold", type=float, help="failure distance in metres (default: the run's, or 0.5)")
+    p.add_argument("--checkpoint", choices=("best", "last"), default="best",
+                   help="which checkpoint of a run (best falls back to last)")
+    p.add_argument("--out", type=Path, help="JSON result path (default for a run: RUN/eval.json); "
+                                            "the table goes next to it as .txt")
+    p.add_argument("--device", default="auto")
+    p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("record", parents=[common], help="record an mp4 of a run's policy")
+    p.add_argument("target", metavar="RUN_OR_CHECKPOINT")
+    p.add_argument("--steps", type=int, help="video length in env steps (default: the run's video.steps, or 300)")
+    p.add_argument("--motions", help="clip name or path (default: the run's first training clip)")
+    p.add_argument("--out", type=Path, help="mp4 path (default: RUN/videos/<checkpoint name>.mp4)")
+    p.add_argument("--checkpoint", choices=("best", "last"), default="best")
+    p.add_argument("--seed", type=int, help="seed of the first reset (default: the run's train.seed)")
+    p.add_argument("--device", default="auto")
+    p.set_defaults(func=cmd_record)
+
+    p = sub.add_parser("plot", parents=[common], help="draw a run's learning curves to a PNG")
+    p.add_argument("run", type=Path, metavar="RUN")
+    p.add_argument("--out", type=Path, help="PNG path (default: RUN/curves.png)")
+    p.set_defaults(func=cmd_plot)
+    return parser
+
+
+# ---------------------------------------------------------------------------------------- train
+def cmd_train(args) -> int:
+    if args.resume is not None:
+        recipe, run, overrides = _resume_recipe(args)
+    else:
+        if args.recipe is None:
+            raise RecipeError("train needs a RECIPE (or --resume RUN_DIR)")
+        overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
+        recipe = load_recipe(args.recipe, overrides, args.profile)
+        root, name = (args.run_dir.parent, args.run_dir.name) if args.run_dir else (args.runs_root, None)
+        run = make_run_dir(recipe, root, name)
+    print(f"run directory: {run}", flush=True)
+
+    agent = _resume_agent(args, recipe, run, overrides) if args.resume else _new_agent(args, recipe, run)
+    evaluator = Evaluator(recipe, progress=not args.no_progress)
+    callbacks, eval_cb = _callbacks(recipe, run, evaluator, resuming=args.resume is not None)
+    remaining = recipe["train"]["total_timesteps"] - agent.num_timesteps
+    try:
+        if remaining > 0:
+            agent.learn(remaining, callback=callbacks, progress_bar=not args.no_progress,
+                        reset_num_timesteps=args.resume is None, log_interval=recipe["train"]["log_interval"])
+        else:
+            print(f"nothing to train: the run is at {agent.num_timesteps:,} of "
+                  f"{recipe['train']['total_timesteps']:,} timesteps")
+    except KeyboardInterrupt:
+        path = agent.save(run / "checkpoints" / "last.pt")
+        _release(agent)
+        print(f"\ninterrupted at {agent.num_timesteps:,} timesteps; saved {path}\n"
+              f"continue with: smpl-envs train --resume {run}", file=sys.stderr)
+        return INTERRUPTED
+    agent.save(run / "checkpoints" / "last.pt")
+    _finish_run(agent, recipe, run, evaluator, eval_cb, progress=not args.no_progress)
+    _release(agent)
+    print(f"run directory: {run}")
+    return 0
+
+
+def _release(agent) -> None:
+    """Flush the TensorBoard writer and free the training env's worlds."""
+    agent.logger.close()
+    if agent.env is not None:
+        agent.env.close()
+
+
+def _new_agent(args, recipe: dict, run: Path):
+    from . import AGENTS
+
+    env, train, agent = recipe["env"], recipe["train"], recipe["agent"]
+    return AGENTS[agent["class"]](
+        env["id"], n_envs=env["num_envs"], env_kwargs=env["kwargs"], seed=train["seed"], device=train["device"],
+        verbose=0 if args.quiet else 1, log_dir=run / "logs", tensorboard=True, **agent["hyperparams"])
+
+
+def _resume_recipe(args) -> tuple[dict, Path, list[str]]:
+    """The stored recipe of the run to resume, with this command's overrides applied."""
+    if args.recipe is not None or args.profile is not None or args.run_dir is not None:
+        raise RecipeError("--resume continues a run with its own config.yaml; give no RECIPE, --profile or "
+                          "--run-dir (change the budget with --set train.total_timesteps=...)")
+    run = args.resume
+    overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
+    stored = read_config(run)
+    recipe = apply_overrides(stored, overrides)
+    # The checkpoint fixes the env and the networks. Repeating their values is fine (the same
+    # command line with --resume added); changing them is not.
+    for key in FIXED_ON_RESUME:
+        if _get_dotted(recipe, key) != _get_dotted(apply_overrides(stored), key):
+            raise RecipeError(f"--set {key}: a resumed run keeps the env id, agent class and network sizes "
+                              "of its checkpoint")
+    if not (run / "checkpoints" / "last.pt").is_file():
+        raise RecipeError(f"cannot resume {run}: it has no checkpoints/last.pt")
+    make_run_dir(recipe, run.parent, run.name, resume=True)  # records the new overrides in config.yaml
+    return recipe, run, overrides
+
+
+def _resume_agent(args, recipe: dict, run: Path, overrides: list[str]):
+    import agents
+
+    # Hyperparameters changed on this command (a lower learning rate ...) replace the saved ones.
+    prefix = "agent.hyperparams."
+    names = {k[len(prefix):].split(".")[0] for k in (o.partition("=")[0].strip() for o in overrides)
+             if k.startswith(prefix)}
+    changed = {name: recipe["agent"]["hyperparams"][name] for name in names}
+    return agents.load(run / "checkpoints" / "last.pt", env="auto", device=recipe["train"]["device"],
+                       n_envs=recipe["env"]["num_envs"], env_kwargs=recipe["env"]["kwargs"],
+                       verbose=0 if args.quiet else 1, log_dir=run / "logs", tensorboard=True, **changed)
+
+
+def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool):
+    from .callbacks import CheckpointCallback, EvalCallback
+
+    callbacks, eval_cb = [], None
+    if recipe["train"]["checkpoint_every"] > 0:
+        callbacks.append(CheckpointCallback(recipe["train"]["checkpoint_every"], run / "checkpoints"))
+    if recipe["eval"]["every"] > 0:
+        eval_cb = EvalCallback(recipe["eval"]["every"], evaluator, run / "checkpoints", key=EVAL_KEY)
+        if resuming:
+            eval_cb.best = _best_logged(run, EVAL_KEY)
+        callbacks.append(eval_cb)
+    return callbacks, eval_cb
+
+
+def _best_logged(run: Path, key: str) -> float | None:
+    """The best eval/<key> the run logged before, so a resumed run's best.pt only gets replaced
+    by a better policy. None when there is no best.pt to protect."""
+    import numpy as np
+
+    csv_path = run / "logs" / "progress.csv"
+    if not (run / "checkpoints" / "best.pt").is_file() or not csv_path.is_file():
+        return None
+    try:
+        values = read_progress(csv_path).get(f"eval/{key}")
+    except EmptyLogError:
+        return None
+    if values is None or not np.isfinite(values).any():
+        return None
+    return float(np.nanmax(values))
+
+
+def _finish_run(agent, recipe: dict, run: Path, evaluator: "Evaluator", eval_cb, progress: bool) -> None:
+    """The end of training: a final evaluation (logged like the periodic ones), eval.json/.txt,
+    curves.png and a video of the deterministic policy."""
+    if eval_cb is not None:
+        # Go through the callback, so best.pt also considers the final policy; skip when the
+        # last periodic evaluation already saw exactly this policy.
+        if not eval_cb.history or eval_cb.history[-1][0] != agent.num_timesteps or evaluator.last is None:
+            eval_cb.fire(agent)
+    else:
+        for k, v in evaluator(agent).items():
+            agent.logger.record(f"eval/{k}", v)
+    if agent.logger.values:  # the final evaluation's row (unless learn() already wrote it)
+        agent.logger.dump(agent.num_timesteps)
+    _write_eval(evaluator.last, run / "eval.json")
+    print(plot_run(run, run / "curves.png"))
+    steps = recipe["video"]["steps"]
+    if steps > 0:
+        info = record_video(agent, run / "videos" / "final.mp4", steps=steps, motions=recipe["video"]["motions"],
+                            fps=recipe["video"]["fps"], seed=recipe["train"]["seed"], progress=progress)
+        print(info["path"])
+
+
+# ---------------------------------------------------------------------------------------- evaluation
+class Evaluator:
+    """`evaluate_fn` for EvalCallback: the PHC protocol on the agent's own env, returning the
+    summary's numbers; keeps the full result of the latest call for eval.json."""
+
+    def __init__(self, recipe: dict, progress: bool = True):
+        self.motions, self.num_envs = recipe["eval"]["motions"], recipe["eval"]["num_envs"]
+        self.threshold, self.progress = recipe["eval"]["threshold"], progress
+        self.last = None
+
+    def __call__(self, agent) -> dict[str, float]:
+        self.last = evaluate_agent(agent, self.motions, self.num_envs, self.threshold, self.progress)
+        return summary_metrics(self.last.summary)
+
+
+def evaluate_agent(agent, motions=None, num_envs: int = 8, threshold: float = 0.5, progress: bool = True):
+    """smpl_envs.evaluate of `agent` on the env it trained on (motions default: its training ones)."""
+    import smpl_envs
+
+    if agent.env_id is None:
+        raise RecipeError("the checkpoint records no env id to evaluate on")
+    return smpl_envs.evaluate(agent, env=agent.env_id, motions=motions or agent.env_kwargs.get("motions"),
+                              num_envs=num_envs, threshold=threshold, progress=progress,
+                              env_kwargs=eval_env_kwargs(agent.env_kwargs))
+
+
+def eval_env_kwargs(env_kwargs: dict) -> dict:
+    return {k: v for k, v in env_kwargs.items() if k not in TRAIN_ONLY_KWARGS}
+
+
+def summary_metrics(summary: dict) -> dict[str, float]:
+    """The summary's numbers without the clip count (a property of the motions, not the policy)."""
+    return {k: float(v) for k, v in summary.items()
+            if k != "clips" and isinstance(v, (int, float)) and not isinstance(v, bool)}
+
+
+def _write_eval(result, json_path: Path) -> None:
+    result.save(json_path)
+    table = result.table()
+    json_path.with_suffix(".txt").write_text(table + "\n")
+    print(table)
+    print(json_path)
+
+
+def cmd_eval(args) -> int:
+    agent, ckpt, run, config = _load_target(args)
+    ev = (config or {}).get("eval", {})
+    motions = args.motions[0] if args.motions and len(args.motions) == 1 else args.motions
+    result = evaluate_agent(agent, motions or ev.get("motions"), args.num_envs or ev.get("num_envs") or 8,
+                            args.threshold or ev.get("threshold") or 0.5, progress=not args.no_progress)
+    print(f"checkpoint: {ckpt} ({agent.num_timesteps:,} timesteps)")
+    out = args.out or (run / "eval.json" if run is not None and Path(args.target).is_dir() else None)
+    if out is None:
+        print(result.table())
+    else:
+        _write_eval(result, out)
+    return 0
+
+
+# ---------------------------------------------------------------------------------------- video
+def record_video(agent, path: Path, steps: int, motions=None, fps: float | None = None, seed: int | None = None,
+                 progress: bool = True) -> dict:
+    """An mp4 of the deterministic policy on its training env, from the start of one clip."""
+    import smpl_envs
+
+    motions = motions or agent.env_kwargs.get("motions")
+    if isinstance(motions, (list, tuple)):  # a single env imitates one clip: show the first
+        motions = motions[0]
+    kwargs = eval_env_kwargs(agent.env_kwargs)
+    # Keep the training termination and episode length, so a fall restarts the clip as in training.
+    kwargs.update({k: agent.env_kwargs[k] for k in ("max_episode_steps", "termination_distance")
+                   if k in agent.env_kwargs})
+    if motions is not None:
+        kwargs["motions"] = motions
+    return smpl_envs.record(agent.env_id, agent, path, steps=steps, episodes=None, fps=fps, seed=seed,
+                            progress=progress, start="beginning", **kwargs)
+
+
+def cmd_record(args) -> int:
+    agent, ckpt, run, config = _load_target(args)
+    video = (config or {}).get("video", {})
+    if args.steps is not None and args.steps < 1:
+        raise RecipeError(f"--steps must be >= 1, got {args.steps}")
+    if args.out is not None:
+        out = args.out
+    elif run is not None:
+        out = run / "videos" / f"{ckpt.stem}.mp4"
+    else:
+        out = ckpt.with_suffix(".mp4")
+    seed = args.seed if args.seed is not None else (config or {}).get("train", {}).get("seed")
+    info = record_video(agent, out, steps=args.steps or video.get("steps") or 300,
+                        motions=args.motions or video.get("motions"), fps=video.get("fps"), seed=seed,
+                        progress=not args.no_progress)
+    print(info["path"])
+    return 0
+
+
+# ---------------------------------------------------------------------------------------- plot
+def cmd_plot(args) -> int:
+    print(plot_run(args.run, args.out))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------- helpers
+def _load_target(args) -> tuple[Any, Path, Path | None, dict | None]:
+    """(agent without an env, its checkpoint, its run directory or None, the run's config or None)."""
+    import agents
+
+    ckpt = find_checkpoint(args.target, args.checkpoint)
+    run = Path(args.target) if Path(args.target).is_dir() else run_dir_of(ckpt)
+    config = read_config(run) if run is not None and (run / "config.yaml").is_file() else None
+    try:
+        agent = agents.load(ckpt, env=None, device=args.device, verbose=0, tensorboard=False)
+    except ValueError as e:  # not a checkpoint of ours
+        raise RecipeError(str(e)) from None
+    return agent, ckpt, run, config
+
+
+def _get_dotted(tree: dict, key: str) -> Any:
+    for part in key.split("."):
+        tree = tree.get(part) if isinstance(tree, dict) else None
+    return tree
+
+
+def _set_threads(n: int) -> None:
+    import torch
+
+    if n < 1:
+        raise RecipeError(f"--threads must be >= 1, got {n}")
+    torch.set_num_threads(n)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

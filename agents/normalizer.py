@@ -1,0 +1,41 @@
+"""Running mean / variance normaliser, kept as module buffers so it travels inside checkpoints."""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class RunningNorm(nn.Module):
+    """Normalises inputs by statistics accumulated over everything passed to `update`.
+
+    Statistics are float64 so that millions of updates do not drift; `count` starts at a tiny
+    epsilon so the first batch defines the statistics almost entirely.
+    """
+
+    def __init__(self, shape: int | tuple[int, ...], clip: float | None = 10.0, eps: float = 1e-8):
+        super().__init__()
+        shape = (shape,) if isinstance(shape, int) else tuple(shape)
+        self.clip, self.eps = clip, eps
+        self.register_buffer("mean", torch.zeros(shape, dtype=torch.float64))
+        self.register_buffer("var", torch.ones(shape, dtype=torch.float64))
+        self.register_buffer("count", torch.tensor(1e-4, dtype=torch.float64))
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        x = x.reshape(-1, *self.mean.shape).to(torch.float64)
+        if x.shape[0] == 0:
+            return
+        batch_mean, batch_var, n = x.mean(0), x.var(0, unbiased=False), x.shape[0]
+        delta, total = batch_mean - self.mean, self.count + n
+        # Chan et al.'s parallel combination of two (mean, M2) summaries.
+        m2 = self.var * self.count + batch_var * n + delta.square() * self.count * n / total
+        self.mean += delta * n / total
+        self.var.copy_(m2 / total)
+        self.count.copy_(total)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = (x - self.mean.to(x.dtype)) / torch.sqrt(self.var.to(x.dtype) + self.eps)
+        return y.clamp(-self.clip, self.clip) if self.clip else y
+
+    def denormalize(self, y: torch.Tensor) -> torch.Tensor:
+        return y * torch.sqrt(self.var.to(y.dtype) + self.eps) + self.mean.to(y.dtype)

@@ -1,0 +1,170 @@
+"""Learning curves of a run: its logs/progress.csv drawn as a grid of panels in one PNG.
+
+    from agents.plot import plot_run
+    plot_run("runs/imitation_ppo-20250101-120000")       # -> runs/.../curves.png
+
+Only the panels the log has data for are drawn, so the same function serves PPO and AMP runs,
+runs with or without evaluation, and a run that has only logged its first row.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+X_KEY = "time/total_timesteps"
+CSV_NAME = "progress.csv"
+
+
+class EmptyLogError(ValueError):
+    """The progress CSV exists but holds no rows to plot."""
+
+
+@dataclass
+class Panel:
+    """One subplot: (column, legend label) pairs on the left axis and, for series of another
+    scale, on a right axis."""
+
+    title: str
+    ylabel: str
+    left: list[tuple[str, str]]
+    right: list[tuple[str, str]] = field(default_factory=list)
+    right_label: str = ""
+
+
+def find_progress_csv(run_dir_or_csv: str | os.PathLike) -> Path:
+    """The progress CSV of a run directory (<run>/logs/progress.csv), of a log directory, or a
+    CSV path as is."""
+    path = Path(run_dir_or_csv)
+    if path.is_dir():
+        for candidate in (path / "logs" / CSV_NAME, path / CSV_NAME):
+            if candidate.is_file():
+                return candidate
+        raise FileNotFoundError(f"no {CSV_NAME} in {path} or {path / 'logs'}")
+    if not path.is_file():
+        raise FileNotFoundError(f"no progress CSV at {path}")
+    return path
+
+
+def read_progress(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Every column of a progress CSV as a float array; empty or non-numeric cells are NaN
+    (the logger adds columns as keys first appear, so early rows have gaps)."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise EmptyLogError(f"{path} has no rows yet; train for at least one iteration first")
+    columns = {k for row in rows for k in row if k is not None}
+    return {k: np.array([_number(row.get(k)) for row in rows]) for k in sorted(columns)}
+
+
+def _number(cell: str | None) -> float:
+    try:
+        return float(cell)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def panels_for(columns: dict[str, np.ndarray]) -> list[Panel]:
+    """The panels worth drawing for these columns, in reading order."""
+    has = lambda k: k in columns and np.isfinite(columns[k]).any()  # noqa: E731
+    reward_terms = sorted(k for k in columns if k.startswith("rollout/reward_") and has(k))
+    candidates = [
+        Panel("Episode length", "steps", [("rollout/ep_len_mean", "mean episode length")]),
+        Panel("Episode return", "return", [("rollout/ep_rew_mean", "mean episode return")]),
+        Panel("Imitation reward terms", "reward per step",
+              [(k, k.removeprefix("rollout/reward_")) for k in reward_terms]
+              + [("rollout/step_reward_mean", "total (as trained on)")]),
+        Panel("Evaluation", "success rate", [("eval/success_rate", "success rate")],
+              [("eval/mpjpe_g", "MPJPE-g (successful clips)"), ("eval/all_mpjpe_g", "MPJPE-g (all clips)")],
+              "mm"),
+        Panel("Adversarial motion prior", "reward / accuracy",
+              [("amp/style_reward_mean", "style reward"), ("amp/task_reward_mean", "task reward"),
+               ("amp/disc_agent_acc", "D accuracy on policy"), ("amp/disc_demo_acc", "D accuracy on demo")]),
+        # The value loss is often orders of magnitude above the policy loss: give it its own axis.
+        Panel("Losses", "policy loss", [("train/policy_loss", "policy loss")],
+              [("train/value_loss", "value loss")], "value loss"),
+        Panel("Update size", "", [("train/approx_kl", "approx. KL"), ("train/clip_fraction", "clip fraction")]),
+        Panel("Throughput", "env steps / s", [("time/fps", "fps")]),
+    ]
+    out = []
+    for panel in candidates:
+        panel.left = [(k, label) for k, label in panel.left if has(k)]
+        panel.right = [(k, label) for k, label in panel.right if has(k)]
+        if panel.left or panel.right:
+            out.append(panel)
+    return out
+
+
+def plot_run(run_dir_or_csv: str | os.PathLike, out: str | os.PathLike | None = None, dpi: int = 110) -> Path:
+    """Draw the learning curves of a run to `out` (default: <run>/curves.png); returns the path."""
+    csv_path = find_progress_csv(run_dir_or_csv)
+    columns = read_progress(csv_path)
+    if X_KEY not in columns:
+        raise EmptyLogError(f"{csv_path} has no {X_KEY} column")
+    run_dir = csv_path.parent.parent if csv_path.parent.name == "logs" else csv_path.parent
+    out = Path(out) if out is not None else run_dir / "curves.png"
+
+    # A resumed run may repeat steps after an interrupt; a stable sort keeps each line drawable.
+    order = np.argsort(columns[X_KEY], kind="stable")
+    columns = {k: v[order] for k, v in columns.items()}
+    panels = panels_for(columns)
+    if not panels:
+        raise EmptyLogError(f"{csv_path} has no column with data to plot")
+
+    # Figure without pyplot: no global backend switch, nothing left open, safe in threads.
+    from matplotlib.figure import Figure
+
+    ncols = min(3, len(panels))
+    nrows = math.ceil(len(panels) / ncols)
+    fig = Figure(figsize=(5.2 * ncols, 3.6 * nrows))
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    x = columns[X_KEY]
+    lo, hi = np.nanmin(x), np.nanmax(x)
+    for ax, panel in zip(axes, panels):
+        _draw(ax, panel, columns)
+        # One time axis for all panels, also for sparse ones (evaluations) that would zoom in.
+        if hi > lo:
+            ax.set_xlim(lo - 0.02 * (hi - lo), hi + 0.02 * (hi - lo))
+    for ax in axes[len(panels):]:
+        ax.set_visible(False)
+    fig.suptitle(f"{run_dir.name}: {int(hi):,} timesteps")
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    return out
+
+
+def _draw(ax, panel: Panel, columns: dict[str, np.ndarray]) -> None:
+    x = columns[X_KEY]
+    lines = _plot_series(ax, x, columns, panel.left, style="-", colors=0)
+    ax.set_title(panel.title)
+    ax.set_xlabel("timesteps")
+    ax.set_ylabel(panel.ylabel)
+    ax.grid(alpha=0.3)
+    ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))
+    if panel.right:
+        twin = ax.twinx()
+        lines += _plot_series(twin, x, columns, panel.right, style="--", colors=len(panel.left))
+        twin.set_ylabel(panel.right_label)
+    if len(lines) > 1 or panel.right:
+        ax.legend(lines, [line.get_label() for line in lines], fontsize="small", loc="best")
+
+
+def _plot_series(ax, x, columns, series, style: str, colors: int) -> list:
+    lines = []
+    for i, (key, label) in enumerate(series):
+        y = columns[key]
+        keep = np.isfinite(x) & np.isfinite(y)
+        # Sparse series (evaluations, short runs) get markers, or a single point would be invisible.
+        marker = "o" if keep.sum() < 30 else None
+        (line,) = ax.plot(x[keep], y[keep], style, marker=marker, markersize=3, label=label,
+                          color=f"C{colors + i}")
+        lines.append(line)
+    return lines
+
+
+__all__ = ["plot_run", "read_progress", "find_progress_csv", "panels_for", "EmptyLogError"]

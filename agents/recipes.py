@@ -1,0 +1,363 @@
+"""Training recipes: YAML files that pin an env, an agent, its hyperparameters and a budget.
+
+    recipe = load_recipe("imitation_ppo", overrides=["env.num_envs=8"], profile="paper")
+    run = make_run_dir(recipe)            # runs/imitation_ppo-20250101-120000/{checkpoints,logs,videos}
+    find_checkpoint(run)                  # run/checkpoints/best.pt, else last.pt, else the newest ckpt
+
+A recipe has the sections `env`, `agent`, `train`, `eval` and `video` (see tasks/*.yaml) and may
+carry `profiles`: named sets of dotted-key overrides (`agent.hyperparams.batch_size: 16384`) that
+rescale it, e.g. from this CPU box to PHC's GPU budget. Resolving a recipe applies the profile,
+then the command line's `key=value` overrides, fills in defaults and validates every section, so a
+typo fails before any env is built rather than hours into a run.
+"""
+from __future__ import annotations
+
+import copy
+import inspect
+import os
+import re
+from datetime import datetime
+from pathlib import Path
+from typing import Any, Iterable
+
+import yaml
+
+from . import AGENTS
+
+CONFIG_NAME = "config.yaml"
+RUN_SUBDIRS = ("checkpoints", "logs", "videos")
+
+# Every key a section may hold, with its default. `env.kwargs` and `agent.hyperparams` are free
+# form here; the hyperparameters are checked against the agent class's constructor instead.
+DEFAULTS: dict[str, dict[str, Any]] = {
+    "env": {"id": None, "num_envs": 1, "kwargs": {}},
+    "agent": {"class": None, "hyperparams": {}},
+    "train": {"total_timesteps": None, "seed": 0, "checkpoint_every": 0, "log_interval": 1, "device": "auto"},
+    "eval": {"every": 0, "num_envs": 8, "motions": None, "threshold": 0.5},
+    "video": {"steps": 300, "fps": None, "motions": None},
+}
+# Bookkeeping written into a resolved recipe (and so into a run's config.yaml).
+META_KEYS = ("recipe_name", "recipe_path", "profile", "overrides")
+
+# Constructor arguments the recipe sets elsewhere (or the CLI sets itself), with where they belong.
+RESERVED_HYPERPARAMS = {
+    "n_envs": "env.num_envs", "env_kwargs": "env.kwargs", "seed": "train.seed", "device": "train.device",
+    "verbose": "the command line (--quiet)", "log_dir": "the run directory", "tensorboard": "the run directory",
+}
+
+# A float YAML 1.1 reads as a string because it lacks a dot ("3e-4", "1e6").
+_FLOAT_RE = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
+class RecipeError(ValueError):
+    """A recipe, an override, a run directory or a checkpoint path the user gave is unusable."""
+
+
+# ---------------------------------------------------------------------------------------- lookup
+def recipe_dirs() -> list[Path]:
+    """Where bare recipe names are looked up: ./tasks first (the user's own), then the repository's."""
+    repo_tasks = Path(__file__).resolve().parents[1] / "tasks"
+    dirs = [Path.cwd() / "tasks", repo_tasks]
+    return [d for i, d in enumerate(dirs) if d.resolve() not in [e.resolve() for e in dirs[:i]]]
+
+
+def available_recipes() -> list[str]:
+    return sorted({p.stem for d in recipe_dirs() if d.is_dir() for p in d.glob("*.yaml")})
+
+
+def resolve_recipe_path(name_or_path: str | os.PathLike) -> Path:
+    """A YAML file path as is, or a bare name as tasks/<name>.yaml (see `recipe_dirs`)."""
+    path = Path(name_or_path)
+    if path.suffix in (".yaml", ".yml") or path.is_file():
+        if not path.is_file():
+            raise RecipeError(f"recipe file {path} does not exist")
+        return path
+    for d in recipe_dirs():
+        candidate = d / f"{path.name}.yaml"
+        if candidate.is_file():
+            return candidate
+    names = ", ".join(available_recipes()) or "none"
+    raise RecipeError(f"no recipe named {str(name_or_path)!r} (looked in {', '.join(map(str, recipe_dirs()))}); "
+                      f"available: {names}")
+
+
+# ---------------------------------------------------------------------------------------- values
+def parse_value(text: str) -> Any:
+    """A command-line value as YAML reads it (numbers, lists, true, null ...), with the floats
+    YAML 1.1 leaves as strings ("3e-4") made floats."""
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text  # not YAML (e.g. an unbalanced bracket in a path): keep the literal string
+    return _fix_floats(value)
+
+
+def _fix_floats(value: Any) -> Any:
+    if isinstance(value, str) and _FLOAT_RE.fullmatch(value.strip()):
+        return float(value)
+    if isinstance(value, dict):
+        return {k: _fix_floats(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_fix_floats(v) for v in value]
+    return value
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """"a.b.c=value" -> ("a.b.c", parsed value)."""
+    key, sep, value = text.partition("=")
+    key = key.strip()
+    if not sep or not key or any(not part for part in key.split(".")):
+        raise RecipeError(f"bad override {text!r}: expected KEY=VALUE with a dotted KEY, e.g. env.num_envs=8")
+    return key, parse_value(value)
+
+
+def set_dotted(tree: dict, key: str, value: Any) -> None:
+    """tree["a"]["b"]["c"] = value for key "a.b.c", creating missing levels."""
+    *parents, leaf = key.split(".")
+    node = tree
+    for i, part in enumerate(parents):
+        child = node.setdefault(part, {})
+        if child is None:  # `kwargs:` left empty in YAML reads as null
+            child = node[part] = {}
+        if not isinstance(child, dict):
+            raise RecipeError(f"cannot set {key!r}: {'.'.join(parents[:i + 1])!r} is {child!r}, not a mapping")
+        node = child
+    node[leaf] = value
+
+
+# ---------------------------------------------------------------------------------------- resolve
+def load_recipe(name_or_path: str | os.PathLike, overrides: Iterable[str] = (), profile: str | None = None) -> dict:
+    """Read a recipe, apply `profile` then the `KEY=VALUE` overrides, and validate it.
+
+    The result has no `profiles` key; it records `recipe_name`, `recipe_path`, `profile` and
+    `overrides` so a run's config.yaml says how it was made.
+    """
+    path = resolve_recipe_path(name_or_path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        raise RecipeError(f"{path} is not valid YAML: {' '.join(str(e).split())}") from None
+    if not isinstance(raw, dict):
+        raise RecipeError(f"{path} must hold a mapping with sections {', '.join(DEFAULTS)}")
+    profiles = raw.pop("profiles", None) or {}
+    if not isinstance(profiles, dict):
+        raise RecipeError(f"{path}: `profiles` must map profile names to overrides")
+    raw.update(recipe_name=path.stem, recipe_path=str(path.resolve()), profile=None, overrides=[])
+    if profile is not None:
+        if profile not in profiles:
+            raise RecipeError(f"recipe {path.stem!r} has no profile {profile!r}; "
+                              f"available: {', '.join(profiles) or 'none'}")
+        for key, value in (profiles[profile] or {}).items():
+            set_dotted(raw, str(key), _fix_floats(value))
+        raw["profile"] = profile
+    return apply_overrides(raw, overrides)
+
+
+def apply_overrides(recipe: dict, overrides: Iterable[str] = ()) -> dict:
+    """A validated copy of `recipe` with the `KEY=VALUE` overrides applied (and appended to its
+    `overrides` record). Also used to change a stored run config when resuming."""
+    recipe = _fix_floats(copy.deepcopy(recipe))
+    overrides = list(overrides)
+    for text in overrides:
+        key, value = parse_override(text)
+        if key.split(".")[0] in META_KEYS:
+            raise RecipeError(f"bad override {text!r}: {key.split('.')[0]!r} is bookkeeping, not a setting")
+        set_dotted(recipe, key, value)
+    recipe["overrides"] = list(recipe.get("overrides") or []) + overrides
+    return validate_recipe(recipe)
+
+
+def validate_recipe(recipe: dict) -> dict:
+    """Fill in defaults and check every setting; RecipeError names the offending key."""
+    unknown = sorted(set(recipe) - set(DEFAULTS) - set(META_KEYS) - {"profiles"})
+    if unknown:
+        raise RecipeError(f"unknown recipe section(s) {unknown}; sections are {', '.join(DEFAULTS)}")
+    out = {k: recipe.get(k) for k in META_KEYS}
+    for section, defaults in DEFAULTS.items():
+        given = recipe.get(section) or {}
+        if not isinstance(given, dict):
+            raise RecipeError(f"recipe section {section!r} must be a mapping, got {given!r}")
+        extra = sorted(set(given) - set(defaults))
+        if extra:
+            raise RecipeError(f"unknown key(s) {[f'{section}.{k}' for k in extra]}; "
+                              f"{section} has {', '.join(f'{section}.{k}' for k in defaults)}")
+        out[section] = {**copy.deepcopy(defaults), **given}
+    _check_env(out["env"])
+    _check_agent(out["agent"])
+    _check_budgets(out)
+    return out
+
+
+def _check_env(env: dict) -> None:
+    env_id = env["id"]
+    if not isinstance(env_id, str) or not env_id:
+        raise RecipeError(f"env.id must be an env id such as 'SMPL/Imitation-v0', got {env_id!r}")
+    if env_id.startswith("SMPL/"):
+        import smpl_envs
+
+        if env_id not in smpl_envs.ENV_IDS:
+            raise RecipeError(f"env.id {env_id!r} is not an smpl_envs task; tasks: {', '.join(smpl_envs.ENV_IDS)}")
+    elif ":" not in env_id:  # "module:Id" ids register on import, when the env is made
+        import gymnasium as gym
+
+        if env_id not in gym.registry:
+            raise RecipeError(f"env.id {env_id!r} is not a registered Gymnasium id")
+    _positive_int(env, "env", "num_envs")
+    if env["kwargs"] is None:
+        env["kwargs"] = {}
+    if not isinstance(env["kwargs"], dict):
+        raise RecipeError(f"env.kwargs must be a mapping of gym.make keyword arguments, got {env['kwargs']!r}")
+    if "num_envs" in env["kwargs"]:
+        raise RecipeError("env.kwargs.num_envs: set the number of worlds with env.num_envs")
+
+
+def _check_agent(agent: dict) -> None:
+    name = agent["class"]
+    if name not in AGENTS:
+        raise RecipeError(f"agent.class must be one of {', '.join(AGENTS)}, got {name!r}")
+    hp = agent["hyperparams"]
+    if hp is None:
+        hp = agent["hyperparams"] = {}
+    if not isinstance(hp, dict):
+        raise RecipeError(f"agent.hyperparams must be a mapping, got {hp!r}")
+    for key in hp:
+        if key in RESERVED_HYPERPARAMS:
+            raise RecipeError(f"agent.hyperparams.{key} is not a hyperparameter here: set it with "
+                              f"{RESERVED_HYPERPARAMS[key]}")
+    accepted = accepted_hyperparams(AGENTS[name])
+    unknown = sorted(set(hp) - accepted)
+    if unknown:
+        raise RecipeError(f"unknown {name} hyperparameter(s) {[f'agent.hyperparams.{k}' for k in unknown]}; "
+                          f"{name} takes {', '.join(sorted(accepted))}")
+
+
+def accepted_hyperparams(cls) -> set[str]:
+    """Keyword arguments of `cls`'s constructor, following `**kwargs` up to the base classes."""
+    names: set[str] = set()
+    for klass in cls.__mro__:
+        init = klass.__dict__.get("__init__")
+        if init is None:
+            continue
+        params = inspect.signature(init).parameters.values()
+        names |= {p.name for p in params
+                  if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)}
+        if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params):
+            break
+    return names - {"self", "env"} - set(RESERVED_HYPERPARAMS)
+
+
+def _check_budgets(recipe: dict) -> None:
+    train, ev, video = recipe["train"], recipe["eval"], recipe["video"]
+    _positive_int(train, "train", "total_timesteps")
+    _positive_int(train, "train", "log_interval")
+    _positive_int(train, "train", "checkpoint_every", allow_zero=True)
+    if train["seed"] is not None and not _is_int(train["seed"]):
+        raise RecipeError(f"train.seed must be an integer or null, got {train['seed']!r}")
+    if not isinstance(train["device"], str):
+        raise RecipeError(f"train.device must be a string such as auto, cpu or cuda, got {train['device']!r}")
+    _positive_int(ev, "eval", "every", allow_zero=True)
+    _positive_int(ev, "eval", "num_envs")
+    if not isinstance(ev["threshold"], (int, float)) or isinstance(ev["threshold"], bool) or ev["threshold"] <= 0:
+        raise RecipeError(f"eval.threshold must be a positive distance in metres, got {ev['threshold']!r}")
+    _positive_int(video, "video", "steps", allow_zero=True)
+    if video["fps"] is not None and (not isinstance(video["fps"], (int, float)) or video["fps"] <= 0):
+        raise RecipeError(f"video.fps must be a positive number or null, got {video['fps']!r}")
+
+
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _positive_int(section: dict, name: str, key: str, allow_zero: bool = False) -> None:
+    value = section[key]
+    # 1e6 from the command line is a float; accept it when it is a whole number.
+    if isinstance(value, float) and value.is_integer():
+        value = section[key] = int(value)
+    if not _is_int(value) or value < (0 if allow_zero else 1):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise RecipeError(f"{name}.{key} must be an integer {bound}, got {value!r}")
+
+
+# ---------------------------------------------------------------------------------------- runs
+def make_run_dir(recipe: dict, root: str | os.PathLike = "runs", name: str | None = None, *,
+                 resume: bool = False) -> Path:
+    """Create `<root>/<recipe_name>-<YYYYmmdd-HHMMSS>` (or `<root>/<name>`) with checkpoints/,
+    logs/ and videos/, and write the resolved recipe to its config.yaml.
+
+    An existing non-empty directory is refused unless `resume` (a run continuing where it
+    stopped), so a new run never mixes its logs and checkpoints into an old one's.
+    """
+    root = Path(root)
+    if name is None:
+        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+        run = root / f"{recipe.get('recipe_name') or 'run'}-{stamp}"
+        suffix = 1
+        while run.exists():  # two runs started within the same second
+            run = root / f"{recipe.get('recipe_name') or 'run'}-{stamp}-{suffix}"
+            suffix += 1
+    else:
+        run = root / name
+    if resume:
+        if not run.is_dir():
+            raise RecipeError(f"cannot resume {run}: no such run directory")
+    elif run.exists() and (not run.is_dir() or any(run.iterdir())):
+        raise RecipeError(f"run directory {run} already exists and is not empty; choose another "
+                          f"--run-dir or continue it with --resume {run}")
+    for sub in RUN_SUBDIRS:
+        (run / sub).mkdir(parents=True, exist_ok=True)
+    write_config(run, recipe)
+    return run
+
+
+def write_config(run: str | os.PathLike, recipe: dict) -> Path:
+    path = Path(run) / CONFIG_NAME
+    path.write_text(yaml.safe_dump(recipe, sort_keys=False, default_flow_style=None))
+    return path
+
+
+def read_config(run: str | os.PathLike) -> dict:
+    """The resolved recipe a run was made with (its config.yaml)."""
+    path = Path(run) / CONFIG_NAME
+    if not path.is_file():
+        raise RecipeError(f"{run} is not a run directory: it has no {CONFIG_NAME}")
+    recipe = yaml.safe_load(path.read_text())
+    if not isinstance(recipe, dict):
+        raise RecipeError(f"{path} does not hold a recipe")
+    return recipe
+
+
+def find_checkpoint(run_or_ckpt: str | os.PathLike, which: str = "best") -> Path:
+    """The checkpoint to use for `run_or_ckpt`: a .pt file as is; for a run directory (or its
+    checkpoints/ directory) best.pt when `which` is "best" and it exists, else last.pt, else the
+    newest ckpt_*.pt."""
+    if which not in ("best", "last"):
+        raise RecipeError(f"which must be 'best' or 'last', got {which!r}")
+    path = Path(run_or_ckpt)
+    if path.is_file():
+        return path
+    if not path.is_dir():
+        raise RecipeError(f"no checkpoint or run directory at {path}")
+    directory = path / "checkpoints" if (path / "checkpoints").is_dir() else path
+    candidates = ([directory / "best.pt"] if which == "best" else []) + [directory / "last.pt"]
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    # Numbered checkpoints carry zero-padded step counts, so name order is step order.
+    numbered = sorted(directory.glob("ckpt_*.pt"))
+    if numbered:
+        return numbered[-1]
+    raise RecipeError(f"no checkpoint in {directory} (looked for best.pt, last.pt and ckpt_*.pt)")
+
+
+def run_dir_of(checkpoint: str | os.PathLike) -> Path | None:
+    """The run directory a checkpoint lies in (<run>/checkpoints/x.pt), or None."""
+    checkpoint = Path(checkpoint)
+    parent = checkpoint.parent
+    if parent.name == "checkpoints" and (parent.parent / CONFIG_NAME).is_file():
+        return parent.parent
+    return None
+
+
+__all__ = ["RecipeError", "load_recipe", "apply_overrides", "validate_recipe", "parse_override", "parse_value",
+           "set_dotted", "make_run_dir", "read_config", "write_config", "find_checkpoint", "run_dir_of",
+           "available_recipes", "recipe_dirs", "resolve_recipe_path", "accepted_hyperparams"]

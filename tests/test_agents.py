@@ -1,0 +1,215 @@
+"""PPO and AMP: learning, persistence, resume, the discriminator, and bad input."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import agents
+from agents import AMP, PPO, CheckpointCallback
+from agents.checkpoint import save_checkpoint
+from agents.logger import Logger
+
+TINY = dict(actor_hidden=(32, 32), critic_hidden=(32, 32), verbose=0)
+
+
+def _rollout_return(model, env_id, episodes=5, seed=0):
+    import gymnasium as gym
+
+    env = gym.make(env_id)
+    total = []
+    for k in range(episodes):
+        obs, _ = env.reset(seed=seed + k)
+        done, ret = False, 0.0
+        while not done:
+            obs, r, term, trunc, _ = env.step(model.predict(obs, deterministic=True)[0])
+            ret += r
+            done = term or trunc
+        total.append(ret)
+    env.close()
+    return float(np.mean(total))
+
+
+@pytest.mark.slow
+def test_ppo_solves_inverted_pendulum():
+    # Gymnasium's reward threshold for InvertedPendulum-v5 is 950 (of 1000).
+    model = PPO("InvertedPendulum-v5", n_envs=8, n_steps=128, batch_size=256, n_epochs=10, seed=0,
+                actor_hidden=(64, 64), critic_hidden=(64, 64), activation="tanh", log_std_init=-0.5, verbose=0)
+    model.learn(150_000, progress_bar=False)
+    assert _rollout_return(model, "InvertedPendulum-v5") >= 950
+
+
+def test_ppo_improves_on_pendulum_quickly():
+    # A fast guard that the update moves the policy the right way: Pendulum's return rises.
+    model = PPO("Pendulum-v1", n_envs=8, n_steps=64, batch_size=128, n_epochs=10, learning_rate=1e-3, seed=1,
+                gamma=0.95, log_std_init=0.0, **TINY)
+    before = _rollout_return(model, "Pendulum-v1", episodes=4)
+    model.learn(24_000, progress_bar=False)
+    after = _rollout_return(model, "Pendulum-v1", episodes=4)
+    assert after > before + 200, (before, after)
+
+
+def test_gae_matches_hand_computation():
+    model = PPO("Pendulum-v1", n_steps=3, gamma=0.9, gae_lambda=0.5, **TINY)
+    buf = {
+        "reward": torch.tensor([[1.0], [2.0], [3.0]]),
+        "value": torch.tensor([[0.5], [1.0], [1.5]]),
+        "done": torch.tensor([[0.0], [1.0], [0.0]]),
+        "bootstrap": torch.tensor([[0.0], [0.9 * 4.0], [0.0]]),  # step 1 was cut by a time limit
+    }
+    adv, ret = model._gae(buf, torch.tensor([2.0]))
+    d2 = 3.0 + 0.9 * 2.0 - 1.5
+    d1 = 2.0 + 0.9 * 4.0 - 1.0               # episode ends: no chaining into step 2
+    d0 = 1.0 + 0.9 * 1.0 - 0.5
+    expected = [d0 + 0.9 * 0.5 * d1, d1, d2]
+    np.testing.assert_allclose(adv[:, 0].numpy(), expected, rtol=1e-6)
+    np.testing.assert_allclose(ret.numpy(), adv.numpy() + buf["value"].numpy(), rtol=1e-6)
+
+
+def test_save_load_gives_identical_deterministic_actions(tmp_path):
+    model = PPO("Pendulum-v1", n_envs=2, n_steps=64, batch_size=64, seed=0, **TINY).learn(256, progress_bar=False)
+    path = model.save(tmp_path / "pendulum")
+    assert path.name == "pendulum.pt"
+    loaded = agents.load(path, device="cpu", verbose=0)
+    assert type(loaded) is PPO and loaded.env is None
+    obs = np.random.default_rng(0).normal(size=(64, 3)).astype(np.float32)
+    np.testing.assert_array_equal(model.predict(obs)[0], loaded.predict(obs)[0])
+    single, state = loaded.predict(obs[0])
+    assert single.shape == (1,) and state is None
+    # Pendulum's box is [-2, 2]: the policy's [-1, 1] maps onto it.
+    wild = loaded.predict(obs * 1e3, deterministic=False)[0]
+    assert np.all(np.abs(wild) <= 2.0)
+
+
+def test_resume_continues_step_count_and_normaliser(tmp_path):
+    model = PPO("Pendulum-v1", n_envs=2, n_steps=32, batch_size=32, seed=0, **TINY).learn(256, progress_bar=False)
+    model.save(tmp_path / "a.pt")
+    norm = model.policy.obs_norm
+    resumed = PPO.load(tmp_path / "a.pt", env="auto", verbose=0)
+    assert resumed.num_timesteps == 256 and resumed.iteration == model.iteration
+    assert resumed.env.num_envs == 2 and resumed.env_id == "Pendulum-v1"
+    torch.testing.assert_close(resumed.policy.obs_norm.mean, norm.mean)
+    torch.testing.assert_close(resumed.policy.obs_norm.count, norm.count)
+    resumed.learn(128, reset_num_timesteps=False, progress_bar=False)
+    assert resumed.num_timesteps == 384
+    # The normaliser kept accumulating on top of the saved statistics, not from scratch.
+    assert resumed.policy.obs_norm.count.item() == pytest.approx(norm.count.item() + 128, abs=1)
+    fresh = PPO.load(tmp_path / "a.pt", env="Pendulum-v1", verbose=0).learn(128, progress_bar=False)
+    assert fresh.num_timesteps == 128  # the default starts the count over, as Stable-Baselines3 does
+
+
+def test_checkpoints_are_atomic(tmp_path, monkeypatch):
+    path = save_checkpoint({"class": "PPO", "x": torch.ones(3)}, tmp_path / "ckpt.pt")
+    before = path.read_bytes()
+
+    def broken_save(obj, f):
+        f.write(b"partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(torch, "save", broken_save)
+    with pytest.raises(OSError, match="disk full"):
+        save_checkpoint({"class": "PPO", "x": torch.zeros(3)}, path)
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["ckpt.pt"]  # no temporary left behind
+
+
+def test_load_rejects_foreign_files_and_wrong_class(tmp_path):
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="not a readable"):
+        agents.load(tmp_path / "junk.pt")
+    torch.save({"weights": torch.ones(2)}, tmp_path / "other.pt")
+    with pytest.raises(ValueError, match="not a smpl-envs agent checkpoint"):
+        agents.load(tmp_path / "other.pt")
+    with pytest.raises(FileNotFoundError):
+        agents.load(tmp_path / "missing.pt")
+    PPO("Pendulum-v1", **TINY).save(tmp_path / "ppo.pt")
+    with pytest.raises(ValueError, match="holds a PPO agent"):
+        AMP.load(tmp_path / "ppo.pt")
+
+
+def test_callbacks_checkpoint_and_stop(tmp_path):
+    calls = []
+
+    def stop_after_three(agent):
+        calls.append(agent.num_timesteps)
+        return len(calls) < 3
+
+    model = PPO("Pendulum-v1", n_envs=2, n_steps=16, batch_size=32, **TINY)
+    model.learn(10_000, progress_bar=False,
+                callback=[CheckpointCallback(64, tmp_path / "ck", keep=1), stop_after_three])
+    assert calls == [32, 64, 96] and model.num_timesteps == 96
+    assert sorted(p.name for p in (tmp_path / "ck").iterdir()) == ["ckpt_000000000064.pt", "last.pt"]
+    assert agents.load(tmp_path / "ck" / "last.pt").num_timesteps == 96
+
+
+def test_bad_input_gives_clear_errors():
+    model = PPO("Pendulum-v1", **TINY)
+    with pytest.raises(ValueError, match="expects 3"):
+        model.predict(np.zeros(5, np.float32))
+    with pytest.raises(ValueError, match="NaN"):
+        model.predict(np.array([np.nan, 0, 0], np.float32))
+    with pytest.raises(TypeError, match="Box action space"):
+        PPO("CartPole-v1", **TINY)
+    with pytest.raises(TypeError, match="unexpected keyword"):
+        PPO("Pendulum-v1", not_a_hyperparameter=1)
+    with pytest.raises(ValueError, match="activation"):
+        PPO("Pendulum-v1", activation="swish2")
+    with pytest.raises(ValueError, match="motion_lib"):
+        AMP("Pendulum-v1", **TINY)
+    with pytest.raises(RuntimeError, match="no env"):
+        PPO(None, **TINY).learn(10)
+
+
+def test_logger_writes_csv_with_late_columns_and_tensorboard(tmp_path):
+    log = Logger(tmp_path, stdout=False)
+    log.record("rollout/a", 1.0)
+    log.dump(10)
+    log.record("rollout/a", 2.0)
+    log.record("rollout/b", 3.0)
+    log.dump(20)
+    log.close()
+    lines = (tmp_path / "progress.csv").read_text().splitlines()
+    assert lines[0].split(",") == ["time/total_timesteps", "rollout/a", "rollout/b"]
+    assert lines[1:] == ["10.0,1.0,", "20.0,2.0,3.0"]
+    assert list((tmp_path / "tb").glob("events.out.tfevents.*"))
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_ppo_on_suite_vector_env_both_autoreset_modes(mode):
+    model = PPO("SMPL/Imitation-v0", n_envs=4, env_kwargs=dict(motions="walk", autoreset_mode=mode),
+                n_steps=48, batch_size=64, n_epochs=1, seed=0, **TINY)
+    model.learn(192, progress_bar=False)
+    assert model.episodes, "a random policy falls within 48 steps"
+    lengths = np.array([n for _, n in model.episodes])
+    assert lengths.min() >= 1 and lengths.max() <= 48
+    logged = {k.split("rollout/reward_")[1] for k in model.logger.last if k.startswith("rollout/reward_")}
+    assert {"pos", "rot", "lin_vel", "ang_vel", "energy"} <= logged
+
+
+def test_amp_discriminator_separates_reference_from_random_policy():
+    # Policy frozen (learning rate 0) and wide (std 1): D alone learns, from rollouts of a random policy.
+    model = AMP("SMPL/Imitation-v0", n_envs=8, env_kwargs=dict(motions="walk"), n_steps=32, batch_size=128,
+                n_epochs=2, learning_rate=0.0, log_std_init=0.0, seed=0, disc_hidden=(64, 64),
+                disc_learning_rate=1e-3, replay_size=2000, **TINY)
+    real = model._sample_demo(256)
+    model.learn(8 * 32 * 4, progress_bar=False)
+    model._collect()  # a fresh rollout D has not trained on
+    fake = model._windows.reshape(-1, model._windows.shape[-1])
+    assert model.discriminator_accuracy(real, fake) > 0.95
+    # The style reward pays reference-like windows more.
+    assert model.style_reward(real).mean() > 2 * model.style_reward(fake).mean()
+
+
+def test_amp_save_load_roundtrip(tmp_path):
+    model = AMP("SMPL/KeypointImitation-v0", n_envs=2, env_kwargs=dict(motions="walk"), n_steps=16,
+                batch_size=32, n_epochs=1, disc_hidden=(32, 32), replay_size=100, seed=0, **TINY)
+    model.learn(64, progress_bar=False)
+    model.save(tmp_path / "amp.pt")
+    loaded = agents.load(tmp_path / "amp.pt", env="auto", verbose=0)
+    assert type(loaded) is AMP and loaded.env_id == "SMPL/KeypointImitation-v0"
+    windows = model._sample_demo(16)
+    torch.testing.assert_close(loaded.style_reward(windows), model.style_reward(windows))
+    obs = np.random.default_rng(0).normal(size=(4, loaded.obs_dim)).astype(np.float32)
+    np.testing.assert_array_equal(loaded.predict(obs)[0], model.predict(obs)[0])
+    loaded.learn(32, reset_num_timesteps=False, progress_bar=False)
+    assert loaded.num_timesteps == 96

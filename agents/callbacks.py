@@ -75,6 +75,7 @@ class _Every(Callback):
         return True
 
     def fire(self, agent) -> bool | None:
+        """Do the periodic work now (also callable outside `learn`, e.g. for a final evaluation)."""
         raise NotImplementedError
 
 
@@ -103,14 +104,14 @@ class CheckpointCallback(_Every):
 class EvalCallback(_Every):
     """Every `every` timesteps runs `evaluate_fn(agent) -> {metric: value}`, logs the metrics under
     eval/ and saves `<directory>/best.pt` when `key` improves (higher is better unless
-    `minimize`)."""
+    `minimize`). `best`: the value to beat, e.g. the best of a run being resumed."""
 
     def __init__(self, every: int, evaluate_fn: Callable, directory: str | os.PathLike | None = None,
-                 key: str | None = None, minimize: bool = False):
+                 key: str | None = None, minimize: bool = False, best: float | None = None):
         super().__init__(every)
         self.evaluate_fn, self.key, self.minimize = evaluate_fn, key, minimize
         self.dir = Path(directory) if directory is not None else None
-        self.best = None
+        self.best = best
         self.history: list[tuple[int, dict]] = []
 
     def fire(self, agent):

@@ -16,6 +16,7 @@ status 2; anything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -66,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", help="apply one of the recipe's profiles (e.g. paper) before the --set overrides")
     p.add_argument("--run-dir", type=Path, help="the run directory (default: RUNS_ROOT/<recipe>-<time>)")
     p.add_argument("--runs-root", type=Path, default=Path("runs"), help="where new run directories go (runs)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="delete an existing --run-dir first (default: refuse to mix two runs)")
     p.add_argument("--resume", type=Path, metavar="RUN_DIR",
                    help="continue a run from its checkpoints/last.pt up to train.total_timesteps")
     p.add_argument("--device", help="torch device (auto, cpu, cuda ...); overrides train.device")
@@ -111,6 +114,8 @@ def cmd_train(args) -> int:
         overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
         recipe = load_recipe(args.recipe, overrides, args.profile)
         root, name = (args.run_dir.parent, args.run_dir.name) if args.run_dir else (args.runs_root, None)
+        if args.overwrite and args.run_dir is not None and args.run_dir.is_dir():
+            shutil.rmtree(args.run_dir)
         run = make_run_dir(recipe, root, name)
     print(f"run directory: {run}", flush=True)
 
@@ -127,22 +132,15 @@ def cmd_train(args) -> int:
                   f"{recipe['train']['total_timesteps']:,} timesteps")
     except KeyboardInterrupt:
         path = agent.save(run / "checkpoints" / "last.pt")
-        _release(agent)
+        agent.close()
         print(f"\ninterrupted at {agent.num_timesteps:,} timesteps; saved {path}\n"
               f"continue with: smpl-envs train --resume {run}", file=sys.stderr)
         return INTERRUPTED
     agent.save(run / "checkpoints" / "last.pt")
     _finish_run(agent, recipe, run, evaluator, eval_cb, progress=not args.no_progress)
-    _release(agent)
+    agent.close()
     print(f"run directory: {run}")
     return 0
-
-
-def _release(agent) -> None:
-    """Flush the TensorBoard writer and free the training env's worlds."""
-    agent.logger.close()
-    if agent.env is not None:
-        agent.env.close()
 
 
 def _new_agent(args, recipe: dict, run: Path):
@@ -195,9 +193,8 @@ def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool):
     if recipe["train"]["checkpoint_every"] > 0:
         callbacks.append(CheckpointCallback(recipe["train"]["checkpoint_every"], run / "checkpoints"))
     if recipe["eval"]["every"] > 0:
-        eval_cb = EvalCallback(recipe["eval"]["every"], evaluator, run / "checkpoints", key=EVAL_KEY)
-        if resuming:
-            eval_cb.best = _best_logged(run, EVAL_KEY)
+        eval_cb = EvalCallback(recipe["eval"]["every"], evaluator, run / "checkpoints", key=EVAL_KEY,
+                               best=_best_logged(run, EVAL_KEY) if resuming else None)
         callbacks.append(eval_cb)
     return callbacks, eval_cb
 

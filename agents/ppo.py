@@ -164,6 +164,12 @@ class PPO:
     def set_logger(self, log_dir: str | Path | None = None, tensorboard: bool = True) -> None:
         self.logger = Logger(log_dir, stdout=self.verbose > 0, tensorboard=tensorboard)
 
+    def close(self) -> None:
+        """Flush the logs and close the env's worlds."""
+        self.logger.close()
+        if self.env is not None:
+            self.env.close()
+
     # ------------------------------------------------------------------ acting
     def _to_env_action(self, a: torch.Tensor) -> np.ndarray:
         # The policy acts in [-1, 1]^d; the env's box can be anything bounded.

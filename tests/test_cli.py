@@ -268,3 +268,23 @@ def test_bad_input_is_one_error_line_and_status_2(argv, match, tmp_path, capsys)
 def test_python_dash_m_agents():
     out = subprocess.run([sys.executable, "-m", "agents", "--help"], capture_output=True, text=True, check=True)
     assert all(cmd in out.stdout for cmd in ("train", "eval", "record", "plot"))
+
+
+# ---------------------------------------------------------------------------------------- README
+def test_readme_demo_commands_run(tmp_path, monkeypatch):
+    """The README's demo line, command by command, with the training budget cut to seconds."""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    line = next(ln for ln in readme.splitlines() if ln.startswith("pip install torch==2.13.0 && pip install -e . &&"))
+    commands = [c.split() for c in line.split("&&")[2:]]
+    assert [c[:2] for c in commands] == [["smpl-envs", "train"], ["smpl-envs", "eval"], ["smpl-envs", "record"]]
+    monkeypatch.chdir(tmp_path)
+    for i, argv in enumerate(commands):
+        argv = argv[1:]
+        if argv[0] == "train":
+            argv += TINY + ["--set", "train.total_timesteps=128", "--set", "video.steps=5"]
+        elif argv[0] == "record":
+            argv += ["--steps", "5"]
+        assert main(argv) == 0, argv
+    run = tmp_path / commands[0][commands[0].index("--run-dir") + 1]
+    assert (run / "checkpoints" / "last.pt").is_file() and (run / "eval.json").is_file()
+    assert any(p.stat().st_size > 1000 for p in (run / "videos").glob("*.mp4"))

@@ -12,6 +12,7 @@ Subclasses (AMP) hook in through `_on_step`, `_shape_rewards`, `_update_extra` a
 from __future__ import annotations
 
 import time
+import warnings
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -417,12 +418,17 @@ class PPO:
     def save(self, path: str | Path) -> Path:
         """One self-contained file: weights, normalisers, optimiser, hyperparameters, step count,
         env id and kwargs (when plain data), RNG state and library versions. Written atomically."""
+        env_kwargs = _plain(self.env_kwargs)
+        dropped = sorted(set(self.env_kwargs) - set(env_kwargs))
+        if dropped:
+            warnings.warn(f"env kwargs {dropped} are not plain data and are left out of the checkpoint; "
+                          "pass them again when loading with env='auto'", stacklevel=2)
         payload = {
             "class": type(self).__name__,
             "hyperparams": self.hyperparams,
             "spaces": {"obs_dim": self.obs_dim, "act_dim": self.act_dim,
                        "action_low": self.action_low.tolist(), "action_high": self.action_high.tolist()},
-            "env": {"id": self.env_id, "kwargs": _plain(self.env_kwargs),
+            "env": {"id": self.env_id, "kwargs": env_kwargs,
                     "n_envs": None if self.env is None else self.env.num_envs},
             "policy": self.policy.state_dict(),
             "optimizer": self.optimizer.state_dict(),

@@ -213,3 +213,13 @@ def test_amp_save_load_roundtrip(tmp_path):
     np.testing.assert_array_equal(loaded.predict(obs)[0], model.predict(obs)[0])
     loaded.learn(32, reset_num_timesteps=False, progress_bar=False)
     assert loaded.num_timesteps == 96
+
+
+def test_save_warns_about_env_kwargs_it_cannot_store(tmp_path):
+    from smpl_envs.envs import load_motions
+
+    lib = load_motions("walk")
+    model = PPO("SMPL/Imitation-v0", n_envs=1, env_kwargs={"motions": lib, "start": "beginning"}, **TINY)
+    with pytest.warns(UserWarning, match=r"\['motions'\]"):
+        model.save(tmp_path / "m.pt")
+    assert agents.load(tmp_path / "m.pt").env_kwargs == {"start": "beginning"}

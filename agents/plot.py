@@ -34,6 +34,7 @@ class Panel:
     left: list[tuple[str, str]]
     right: list[tuple[str, str]] = field(default_factory=list)
     right_label: str = ""
+    log: bool = False  # log y axis, for quantities whose rare spikes would flatten the rest
 
 
 def find_progress_csv(run_dir_or_csv: str | os.PathLike) -> Path:
@@ -87,7 +88,8 @@ def panels_for(columns: dict[str, np.ndarray]) -> list[Panel]:
         # The value loss is often orders of magnitude above the policy loss: give it its own axis.
         Panel("Losses", "policy loss", [("train/policy_loss", "policy loss")],
               [("train/value_loss", "value loss")], "value loss"),
-        Panel("Update size", "", [("train/approx_kl", "approx. KL"), ("train/clip_fraction", "clip fraction")]),
+        Panel("Update size", "", [("train/approx_kl", "approx. KL"), ("train/clip_fraction", "clip fraction")],
+              log=True),
         Panel("Throughput", "env steps / s", [("time/fps", "fps")]),
     ]
     out = []
@@ -146,6 +148,8 @@ def _draw(ax, panel: Panel, columns: dict[str, np.ndarray]) -> None:
     ax.set_ylabel(panel.ylabel)
     ax.grid(alpha=0.3)
     ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))
+    if panel.log:
+        ax.set_yscale("log")
     if panel.right:
         twin = ax.twinx()
         lines += _plot_series(twin, x, columns, panel.right, style="--", colors=len(panel.left))
@@ -161,8 +165,14 @@ def _plot_series(ax, x, columns, series, style: str, colors: int) -> list:
         keep = np.isfinite(x) & np.isfinite(y)
         # Sparse series (evaluations, short runs) get markers, or a single point would be invisible.
         marker = "o" if keep.sum() < 30 else None
-        (line,) = ax.plot(x[keep], y[keep], style, marker=marker, markersize=3, label=label,
-                          color=f"C{colors + i}")
+        color = f"C{colors + i}"
+        xs, ys = x[keep], y[keep]
+        window = len(ys) // 60
+        if window >= 3:  # long, noisy runs: the raw series faint, a running mean on top
+            ax.plot(xs, ys, style, color=color, alpha=0.25, linewidth=0.8)
+            ys = np.convolve(ys, np.ones(window) / window, mode="same")
+            xs, ys = xs[window // 2: len(xs) - window // 2], ys[window // 2: len(ys) - window // 2]
+        (line,) = ax.plot(xs, ys, style, marker=marker, markersize=3, label=label, color=color)
         lines.append(line)
     return lines
 

@@ -223,3 +223,21 @@ def test_save_warns_about_env_kwargs_it_cannot_store(tmp_path):
     with pytest.warns(UserWarning, match=r"\['motions'\]"):
         model.save(tmp_path / "m.pt")
     assert agents.load(tmp_path / "m.pt").env_kwargs == {"start": "beginning"}
+
+
+def test_amp_demo_windows_from_frame_table_match_the_motion_library(monkeypatch):
+    import agents.amp as amp_module
+
+    model = AMP("SMPL/Imitation-v0", n_envs=1, env_kwargs=dict(motions=["walk", "jump"]), disc_hidden=(8,),
+                **TINY)
+    lib = model.motion_lib
+    assert model._frame_table.shape == (lib.num_frames, 232)
+    ids = np.array([0, 0, 1, 1, 1])
+    times = np.array([0, 3, 0, 5, lib.lengths[1] - 1]) / lib.fps  # window starts before the clip, too
+    table = model._reference_windows(ids, times)
+    monkeypatch.setattr(model, "_frame_table", None)
+    direct = model._reference_windows(ids, times)
+    np.testing.assert_allclose(table, direct, atol=1e-5)
+    monkeypatch.setattr(amp_module, "DEMO_TABLE_MAX_FRAMES", 10)
+    model.set_env("SMPL/Imitation-v0", env_kwargs=dict(motions="walk"))
+    assert model._frame_table is None  # large libraries fall back to computing windows

@@ -196,7 +196,24 @@ def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool):
         eval_cb = EvalCallback(recipe["eval"]["every"], evaluator, run / "checkpoints", key=EVAL_KEY,
                                best=_best_logged(run, EVAL_KEY) if resuming else None)
         callbacks.append(eval_cb)
+    if recipe["train"]["max_minutes"] is not None:
+        callbacks.append(WallClockBudget(recipe["train"]["max_minutes"]))
     return callbacks, eval_cb
+
+
+class WallClockBudget:
+    """Stops training after `minutes` of this command's wall-clock time (train.max_minutes):
+    on a CPU a time budget is often what the user has, not a step count."""
+
+    def __init__(self, minutes: float):
+        import time
+
+        self.deadline = time.monotonic() + 60.0 * minutes
+
+    def __call__(self, agent) -> bool:
+        import time
+
+        return time.monotonic() < self.deadline
 
 
 def _best_logged(run: Path, key: str) -> float | None:

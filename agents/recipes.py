@@ -32,7 +32,8 @@ RUN_SUBDIRS = ("checkpoints", "logs", "videos")
 DEFAULTS: dict[str, dict[str, Any]] = {
     "env": {"id": None, "num_envs": 1, "kwargs": {}},
     "agent": {"class": None, "hyperparams": {}},
-    "train": {"total_timesteps": None, "seed": 0, "checkpoint_every": 0, "log_interval": 1, "device": "auto"},
+    "train": {"total_timesteps": None, "max_minutes": None, "seed": 0, "checkpoint_every": 0, "log_interval": 1,
+              "device": "auto"},
     "eval": {"every": 0, "num_envs": 8, "motions": None, "threshold": 0.5},
     "video": {"steps": 300, "fps": None, "motions": None},
 }
@@ -253,6 +254,9 @@ def _check_budgets(recipe: dict) -> None:
     _positive_int(train, "train", "checkpoint_every", allow_zero=True)
     if train["seed"] is not None and not _is_int(train["seed"]):
         raise RecipeError(f"train.seed must be an integer or null, got {train['seed']!r}")
+    minutes = train["max_minutes"]
+    if minutes is not None and (not isinstance(minutes, (int, float)) or isinstance(minutes, bool) or minutes <= 0):
+        raise RecipeError(f"train.max_minutes must be a positive number of minutes or null, got {minutes!r}")
     if not isinstance(train["device"], str):
         raise RecipeError(f"train.device must be a string such as auto, cpu or cuda, got {train['device']!r}")
     _positive_int(ev, "eval", "every", allow_zero=True)

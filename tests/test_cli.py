@@ -120,6 +120,7 @@ def test_names_resolve_from_the_working_directory_first(tmp_path, monkeypatch):
     (dict(name_or_path="imitation_ppo", overrides=["agent.hyperparams.lr=1"]), "agent.hyperparams.lr"),
     (dict(name_or_path="imitation_ppo", overrides=["agent.hyperparams.seed=1"]), "train.seed"),
     (dict(name_or_path="imitation_ppo", overrides=["learning_rate"]), "expected KEY=VALUE"),
+    (dict(name_or_path="imitation_ppo", overrides=["train.max_minutes=-1"]), "train.max_minutes must be"),
     (dict(name_or_path="imitation_ppo", overrides=["env.id.x=1"]), "not a mapping"),
 ])
 def test_recipe_errors_name_the_problem(kwargs, match):
@@ -233,6 +234,14 @@ def test_ctrl_c_saves_a_resumable_checkpoint(tmp_path, monkeypatch, capsys):
     assert code == 130
     assert agents.load(run / "checkpoints" / "last.pt").num_timesteps == 2 * 64
     assert f"--resume {run}" in capsys.readouterr().err
+
+
+def test_wall_clock_budget_stops_training(tmp_path):
+    run = tmp_path / "run"
+    assert main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=1000000", "--set", "train.max_minutes=1e-6",
+                 "--set", "video.steps=0", "--run-dir", str(run), *TINY]) == 0
+    assert agents.load(run / "checkpoints" / "last.pt").num_timesteps == 64  # one iteration, then the budget
+    assert (run / "eval.json").is_file()  # a budget stop still finishes the run
 
 
 def test_amp_recipe_trains(tmp_path):

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -206,13 +207,9 @@ class WallClockBudget:
     on a CPU a time budget is often what the user has, not a step count."""
 
     def __init__(self, minutes: float):
-        import time
-
         self.deadline = time.monotonic() + 60.0 * minutes
 
     def __call__(self, agent) -> bool:
-        import time
-
         return time.monotonic() < self.deadline
 
 

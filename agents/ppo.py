@@ -464,7 +464,6 @@ class PPO:
         agent.episodes.extend(tuple(e) for e in ckpt["episodes"])
         agent.env_id, agent.env_kwargs = ckpt["env"]["id"], dict(ckpt["env"]["kwargs"] or {})
         torch.set_rng_state(ckpt["torch_rng"].cpu())
-        agent.checkpoint_info = {k: ckpt[k] for k in ("env", "versions")}
         if isinstance(env, str) and env == "auto":
             if agent.env_id is None:
                 raise ValueError("the checkpoint records no env id; pass an env")

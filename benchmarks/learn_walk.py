@@ -16,12 +16,12 @@ from pathlib import Path
 import torch
 
 from agents import PPO, CheckpointCallback
+from agents.recipes import load_recipe
 
-HYPERPARAMS = dict(n_steps=32, batch_size=1024, n_epochs=5, learning_rate=1e-4, gamma=0.99, gae_lambda=0.95,
-                   clip_range=0.2, vf_coef=2.0, bounds_loss_coef=10.0, max_grad_norm=10.0, obs_clip=5.0,
-                   actor_hidden=[512, 256], critic_hidden=[512, 256], activation="silu", log_std_init=-2.9,
-                   learn_std=False)
-ENV_KWARGS = dict(motions="walk", energy_weight=1e-5)
+# The recipe's values, read from it so the two cannot drift apart.
+RECIPE = load_recipe("imitation_ppo")
+HYPERPARAMS = RECIPE["agent"]["hyperparams"]
+ENV_KWARGS = RECIPE["env"]["kwargs"]  # motions: walk; the env's default energy weight (1e-5)
 
 
 def main() -> None:

@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import joblib
 import mujoco
 import numpy as np
@@ -9,6 +11,7 @@ from smpl_envs.motion import (
     Motion, MotionFileError, MotionLib, available_clips, load_motion, read_motion_file,
 )
 from smpl_envs.motion.export import to_amass, to_phc_pkl
+from smpl_envs.motion.library import CLIPS_DIR
 from smpl_envs.humanoid.kinematics import lowest_point
 from smpl_envs.humanoid.skeleton import MEAN_SKELETON
 from smpl_envs.rotations import quat_apply, yaw_quat
@@ -178,6 +181,41 @@ def test_malformed_pickles_and_suffixes(tmp_path):
 
 
 # ---------------------------------------------------------------- the library
+def test_a_bare_name_is_always_the_shipped_clip(tmp_path, monkeypatch):
+    """Local folders named like shipped clips (a run directory called `run`) change nothing."""
+    for folder in ("walk", "run"):
+        (tmp_path / folder).mkdir()
+        to_amass(sway_motion(60, name="x"), tmp_path / folder / "x.npz")
+    (tmp_path / "jump").write_bytes(b"not a clip")  # a plain file of that name, too
+    monkeypatch.chdir(tmp_path)
+    shipped = {name: Motion.from_raw(read_motion_file(CLIPS_DIR / f"{name}.npz")[0])
+               for name in ("walk", "run", "jump")}
+    lib = MotionLib.load(["walk", "run", "jump"], progress=False)
+    assert lib.names == ["walk", "run", "jump"]
+    for i, name in enumerate(lib.names):
+        np.testing.assert_allclose(lib.motion(i).body_pos, shipped[name].body_pos, atol=1e-5)
+    assert MotionLib.load("walk", progress=False).names == ["walk"]
+    np.testing.assert_allclose(load_motion("walk").body_pos, shipped["walk"].body_pos, atol=1e-9)
+    # written as a path, the local folder is what is loaded
+    for local in ("./walk", str(tmp_path / "walk"), tmp_path / "walk", Path("walk")):
+        assert MotionLib.load(local, progress=False).names == ["x"], local
+    assert load_motion("walk/x.npz").name == "x"
+
+
+def test_paths_expand_home_and_unknown_names_say_what_exists(tmp_path, monkeypatch):
+    monkeypatch.setenv("HOME", str(tmp_path))
+    (tmp_path / "amass").mkdir()
+    to_amass(sway_motion(60, name="x"), tmp_path / "amass" / "x.npz")
+    assert MotionLib.load("~/amass", progress=False).names == ["x"]
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(FileNotFoundError, match=r"'amass' is not a shipped clip.*shipped clips.*\./amass"):
+        MotionLib.load("amass")
+    with pytest.raises(FileNotFoundError, match="'nowhere/x.npz': no such file"):
+        MotionLib.load("nowhere/x.npz")
+    with pytest.raises(FileNotFoundError, match="'walk.npz': no such file"):
+        load_motion("walk.npz")  # an extension makes it a path, even next to no such file
+
+
 def _tree(root, n=6):
     (root / "subject1").mkdir(parents=True)
     for i in range(n):

@@ -38,22 +38,40 @@ def available_clips() -> list[str]:
     return sorted(p.stem for p in CLIPS_DIR.glob("*.npz"))
 
 
+def is_clip_name(source: str | os.PathLike) -> bool:
+    """Whether `source` names a shipped clip rather than a path (see `resolve_clip`)."""
+    if not isinstance(source, str):
+        return False  # a Path object is a path even when it has a single part
+    return not (any(sep in source for sep in "/\\") or source.startswith((".", "~"))
+                or Path(source).suffix)
+
+
 def resolve_clip(name_or_path: str | os.PathLike) -> Path:
-    """A path as given if it exists, else the shipped clip of that name."""
-    path = Path(name_or_path)
-    if path.exists():
-        return path
-    shipped = CLIPS_DIR / f"{name_or_path}.npz"
-    if shipped.is_file():
-        return shipped
-    raise FileNotFoundError(
-        f"{name_or_path!r} is neither a file nor a shipped clip; shipped clips: {available_clips()}"
-    )
+    """The file or directory a motion source means.
+
+    A bare name -- a string with no path separator and no file extension, not starting with "."
+    or "~", such as "walk" -- is always the shipped clip of that name, whatever files or folders
+    of that name exist in the current directory. Anything else is a path: "./walk",
+    "data/x.npz", "~/amass", "clip.pkl", or any `pathlib.Path`. To load a local folder whose name
+    looks like a clip name, write it as a path ("./walk").
+    """
+    if is_clip_name(name_or_path):
+        shipped = CLIPS_DIR / f"{name_or_path}.npz"
+        if shipped.is_file():
+            return shipped
+        raise FileNotFoundError(f"{name_or_path!r} is not a shipped clip (shipped clips: "
+                                f"{available_clips()}); write a path such as ./{name_or_path} "
+                                "to load a file or directory")
+    path = Path(name_or_path).expanduser()
+    if not path.exists():
+        raise FileNotFoundError(f"{str(name_or_path)!r}: no such file or directory")
+    return path
 
 
 def load_motion(path_or_name: str | os.PathLike, skeleton: Skeleton = MEAN_SKELETON,
                 ground: bool = True) -> Motion:
-    """One clip at 30 fps from a file (AMASS .npz, PHC .pkl, own .npz) or a shipped clip's name.
+    """One clip at 30 fps from a file (AMASS .npz, PHC .pkl, own .npz) or a shipped clip's name
+    (a bare name such as "walk" is always a shipped clip; see `resolve_clip`).
 
     `skeleton` is the body the motion is retargeted to (bone lengths, pelvis offset); the default
     is the mean shape, whatever betas the file carries (they are kept in `Motion.betas`).
@@ -139,21 +157,32 @@ class MotionLib:
     ) -> "MotionLib":
         """Load clips from names, files, directory trees (recursively) or saved libraries.
 
+        A bare name ("walk": no path separator, no extension, not starting with "." or "~") is
+        always a shipped clip, never a file or folder of that name in the current directory;
+        anything else is a path ("./walk", "data/x.npz", "~/amass", a `pathlib.Path`). See
+        `resolve_clip`.
+
         Files that cannot be read are skipped and listed in `.errors` as (path, reason), with one
-        warning summarising them; AMASS shape-only files are skipped silently. A directory tree is
-        cached as a saved library in `cache_dir()` (or the directory `cache` names), keyed by
-        every file's path, size and modification time and by the skeleton: an unchanged tree loads
-        from the cache (memory-mapped, in about a second), a changed one is parsed again.
+        warning summarising them; AMASS shape-only files are skipped silently.
+
+        cache: a directory tree given alone is cached as a saved library, keyed by every file's
+        path, size and modification time and by the skeleton: an unchanged tree loads from the
+        cache (memory-mapped, in about a second), a changed one is parsed again. True caches in
+        `cache_dir()` ($SMPL_ENVS_CACHE), a path caches in that directory, False neither reads
+        nor writes any cache. A cache that cannot be written only warns; a cache entry that does
+        not validate is rebuilt, with a warning.
         """
+        if not isinstance(cache, (bool, str, os.PathLike)):
+            raise TypeError(f"cache must be True, False or a directory path, got {cache!r}")
         items = [source] if isinstance(source, (str, os.PathLike)) else list(source)
-        if len(items) == 1 and _is_library(resolve_clip(items[0])):
-            lib = cls._read(resolve_clip(items[0]), skeleton)
-        elif len(items) == 1 and resolve_clip(items[0]).is_dir():
-            lib = cls._load_tree(resolve_clip(items[0]), skeleton, cache, progress)
+        paths = [resolve_clip(item) for item in items]
+        if len(paths) == 1 and _is_library(paths[0]):
+            lib = cls._read(paths[0], skeleton)
+        elif len(paths) == 1 and paths[0].is_dir():
+            lib = cls._load_tree(paths[0], skeleton, cache, progress)
         else:
             raws, errors = [], []
-            for item in items:
-                path = resolve_clip(item)
+            for path in paths:
                 files = _motion_files(path) if path.is_dir() else [path]
                 r, e = _load_files(files, skeleton, progress and len(files) > 1)
                 raws, errors = raws + r, errors + e

@@ -2,8 +2,9 @@
 
 Clips are concatenated along the frame axis; `get_state(motion_ids, times)` gathers and
 interpolates the reference of N environments in one call. Loading a tree of motion files reports
-every bad file by name and reason and keeps the rest; the parsed clips are cached in one .npz so
-that a second load of the same tree skips parsing entirely.
+every bad file by name and reason and keeps the rest; the parsed clips are cached as a saved
+library (a directory of .npy files) so that a second load of the same tree skips parsing entirely.
+The cache only ever speeds loading up: an unwritable cache warns, a damaged entry is rebuilt.
 """
 
 from __future__ import annotations
@@ -21,8 +22,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ..features import BodyState, amp_features, rotmat_from_quat
-from ..humanoid.skeleton import MEAN_SKELETON, Skeleton
-from ..humanoid.skeleton import PARENTS
+from ..humanoid.skeleton import MEAN_SKELETON, NUM_BODIES, NUM_HINGES, PARENTS, Skeleton
 from ..rotations import quat_apply, quat_inv, quat_mul, quat_slerp, yaw_quat
 from .kinematics import Segments
 from .loaders import MOTION_SUFFIXES, MotionFileError, ShapeOnlyFile, read_motion_file
@@ -202,15 +202,22 @@ class MotionLib:
         if cache is False:
             raws, errors = _load_files(files, skeleton, progress)
             return cls(raws, skeleton, errors=errors)
-        target = (cache_dir() if cache is True else Path(cache)) / f"motionlib-{_tree_key(files, skeleton)}"
-        if _is_library(target):
+        folder = cache_dir() if cache is True else Path(cache).expanduser()
+        target = folder / f"motionlib-{_tree_key(files, skeleton)}"
+        if target.exists():
             try:
                 return cls._read(target, skeleton)
-            except (OSError, KeyError, ValueError):
-                pass  # a damaged cache is rebuilt, never trusted
+            except Exception as e:  # a cache is never trusted: whatever is wrong, parse again
+                warnings.warn(f"motion cache entry {target} is damaged ({e}); rebuilding it",
+                              stacklevel=3)
         raws, errors = _load_files(files, skeleton, progress)
         lib = cls(raws, skeleton, errors=errors)
-        lib.save(target)
+        try:
+            lib.save(target)
+        except OSError as e:  # the motions are loaded; only the next load's speed-up is lost
+            warnings.warn(f"motion cache directory {folder} cannot be written ({e}); the tree "
+                          "will be parsed again next time (set SMPL_ENVS_CACHE or pass cache= "
+                          "to use another directory, cache=False to stop caching)", stacklevel=3)
         return lib
 
     def save(self, path: str | os.PathLike) -> None:
@@ -220,6 +227,16 @@ class MotionLib:
         tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir(parents=True)
+        try:
+            self._write(tmp)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)  # no half-written directory left behind
+            raise
+        if path.exists():
+            shutil.rmtree(path)
+        os.replace(tmp, path)
+
+    def _write(self, tmp: Path) -> None:
         lib = self if not np.any(self.yaw) else self._rotated_copy(-self.yaw)
         for name in LIB_FIELDS:
             np.save(tmp / f"{name}.npy", getattr(lib, name))
@@ -231,13 +248,12 @@ class MotionLib:
                  betas=np.concatenate(betas), betas_lengths=np.array([len(b) for b in betas]),
                  error_paths=np.array([p for p, _ in self.errors], dtype=str),
                  error_reasons=np.array([w for _, w in self.errors], dtype=str))
-        if path.exists():
-            shutil.rmtree(path)
-        os.replace(tmp, path)
 
     @classmethod
     def _read(cls, path: Path, skeleton: Skeleton) -> "MotionLib":
         with np.load(path / "meta.npz", allow_pickle=False) as z:
+            if str(z["format"]) != LIBRARY_FORMAT:
+                raise MotionFileError(path, "not a saved MotionLib")
             if int(z["version"]) > LIBRARY_VERSION:
                 raise ValueError(f"{path}: library written by a newer smpl_envs")
             if str(z["skeleton_key"]) != _skeleton_key(skeleton):
@@ -248,7 +264,13 @@ class MotionLib:
                         genders=z["genders"].tolist(), lengths=z["lengths"],
                         betas=[b if len(b) else None for b in betas],
                         errors=list(zip(z["error_paths"].tolist(), z["error_reasons"].tolist())))
-        arrays = {f: np.load(path / f"{f}.npy", mmap_mode="r") for f in LIB_FIELDS}
+        arrays = {}
+        for f in LIB_FIELDS:
+            try:
+                arrays[f] = np.load(path / f"{f}.npy", mmap_mode="r")
+            except (OSError, EOFError, ValueError) as e:  # missing, empty, truncated
+                raise MotionFileError(path, f"{f}.npy cannot be read ({type(e).__name__}: {e})") from None
+        _validate(path, meta, arrays)
         lib = cls.__new__(cls)
         lib._init(skeleton, meta, arrays)
         return lib
@@ -374,6 +396,32 @@ class MotionLib:
 LIB_FIELDS = ("body_pos", "body_quat", "body_lin_vel", "body_ang_vel", "dof_pos", "dof_vel",
               "root_ang_vel_local")
 _CHUNK_FRAMES = 200_000  # bounds the float64 temporaries of derivation to a few hundred MB
+# Trailing shape of each stored field (rows are frames).
+_FIELD_SHAPES = {"body_pos": (NUM_BODIES, 3), "body_quat": (NUM_BODIES, 4),
+                 "body_lin_vel": (NUM_BODIES, 3), "body_ang_vel": (NUM_BODIES, 3),
+                 "dof_pos": (NUM_HINGES,), "dof_vel": (NUM_HINGES,), "root_ang_vel_local": (3,)}
+
+
+def _validate(path: Path, meta: dict, arrays: dict[str, np.ndarray]) -> None:
+    """Check a saved library against its own metadata, so that a damaged one fails here, by
+    name, and not later as an IndexError in get_state or a silently wrong reference."""
+    lengths = np.asarray(meta["lengths"])
+    counts = {len(meta[k]) for k in ("names", "sources", "genders", "betas")}
+    if lengths.ndim != 1 or counts != {len(lengths)} or not len(lengths) or np.any(lengths < 1):
+        raise MotionFileError(path, "meta.npz lists inconsistent clips")
+    frames = int(lengths.sum())
+    for name in LIB_FIELDS:
+        a, tail = arrays[name], _FIELD_SHAPES[name]
+        if a.shape != (frames, *tail) or a.dtype != np.float32:
+            raise MotionFileError(path, f"{name}.npy holds {a.dtype} {a.shape}, expected "
+                                        f"float32 {(frames, *tail)}")
+    # Finiteness is checked on every clip's first and last frame only: reading every frame
+    # would cost the memory-mapped load its speed on large trees.
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    edges = np.concatenate([starts, starts + lengths - 1])
+    for name in LIB_FIELDS:
+        if not np.all(np.isfinite(arrays[name][edges])):
+            raise MotionFileError(path, f"{name}.npy contains NaN or inf")
 
 
 def _qpos(f: dict) -> np.ndarray:

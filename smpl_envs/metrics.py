@@ -22,6 +22,15 @@ E_mpjpe        Root-relative mean per-joint position error, in mm: as E_g-mpjpe 
                each trajectory's positions by p_t,j - p_t,root (each by its own root, per frame).
                The root itself then has zero error and still counts among the J bodies.
 
+E_pa-mpjpe     Procrustes-aligned mean per-joint position error, in mm (reported by PHC's
+               evaluation and SimPoE): per frame t, the similarity transform (rotation R_t with
+               det R_t = +1, translation c_t, uniform scale s_t) minimising
+               sum_j ||s_t R_t sim_t,j + c_t - ref_t,j||^2 is applied to the simulated joints
+               (Umeyama's closed form, with the reflection correction, so a mirror image is
+               never "aligned"), then 1000 * mean over t and j of
+               ||s_t R_t sim_t,j + c_t - ref_t,j||. Only the pose is scored: where the body is,
+               which way it faces and how big it is are all aligned away.
+
 E_acc          Acceleration error, in mm/frame^2: with second differences
                a_t,j = p_t+1,j - 2 p_t,j + p_t-1,j  (t = 1 .. T-2; not divided by dt^2),
                1000 * mean over t and j of ||a^sim_t,j - a^ref_t,j||. NaN when T < 3.
@@ -30,10 +39,21 @@ E_vel          Velocity error, in mm/frame: with first differences v_t,j = p_t+1
                (t = 0 .. T-2; not divided by dt), 1000 * mean over t and j of
                ||v^sim_t,j - v^ref_t,j||. NaN when T < 2.
 
-Aggregates (`summarize`): success rate = successful clips / clips; each error is the mean of the
-per-clip values over the successful clips (how PHC reports them; NaN if none succeeded), and also
-over all clips (keys prefixed ``all_``). Clip values that are NaN (too short a clip) are skipped.
-Clips are weighted equally, not by their length.
+Row keys       `clip_metrics` writes E_g-mpjpe as mpjpe_g, E_mpjpe as mpjpe_l, E_pa-mpjpe as
+               mpjpe_pa, E_acc as accel and E_vel as vel (ERROR_KEYS).
+
+Frame counts   Each per-clip error is a mean over frames; a clip row records how many:
+               frames_pos = T for E_g-mpjpe, E_mpjpe and E_pa-mpjpe, frames_vel = T - 1 for E_vel
+               (first differences) and frames_acc = max(T - 2, 0) for E_acc (second differences).
+
+Aggregates (`summarize`): success rate = successful clips / clips. Each error is aggregated as
+PHC's evaluation does it: the per-frame errors of the clips are pooled and averaged, so every frame
+weighs the same (a 20 s clip counts ten times a 2 s clip). From the per-clip means that is
+sum_i n_i e_i / sum_i n_i, with n_i the clip's frame count for that error (above). The plain keys
+are over the successful clips (how PHC reports them; NaN if none succeeded), ``all_*`` over all
+clips (failed clips up to their failure frame). The per-clip-mean view (every clip weighs the same
+whatever its length) is kept under ``clip_mean_*`` (successful clips) and ``clip_mean_all_*``.
+Clip values that are NaN (too short a clip) are skipped.
 """
 
 from __future__ import annotations
@@ -44,7 +64,13 @@ import math
 import numpy as np
 
 MM = 1000.0  # metres -> millimetres
-ERROR_KEYS = ("mpjpe_g", "mpjpe_l", "accel", "vel")
+ERROR_KEYS = ("mpjpe_g", "mpjpe_l", "mpjpe_pa", "accel", "vel")
+# The row key holding the number of frames each error averages over (the weight of the clip's
+# value in the frame-weighted aggregate).
+COUNT_KEYS = {"mpjpe_g": "frames_pos", "mpjpe_l": "frames_pos", "mpjpe_pa": "frames_pos",
+              "accel": "frames_acc", "vel": "frames_vel"}
+# Frames lost by each count to differencing (used when a row carries only `frames`).
+_LOST = {"frames_pos": 0, "frames_vel": 1, "frames_acc": 2}
 
 
 def _check(sim, ref) -> tuple[np.ndarray, np.ndarray]:
@@ -99,6 +125,40 @@ def mpjpe_local(sim, ref, root: int = 0) -> float:
     return _mean_norm((sim - sim[:, [root]]) - (ref - ref[:, [root]]))
 
 
+def procrustes_align(sim, ref) -> np.ndarray:
+    """`sim` (T, J, 3) moved, frame by frame, onto `ref` by the best similarity transform.
+
+    Per frame, with centred point sets x_j = sim_j - mean(sim), y_j = ref_j - mean(ref) and their
+    cross-covariance C = sum_j y_j x_j^T = U diag(d) V^T (SVD), the least-squares optimum is
+    R = U S V^T with S = diag(1, 1, sign(det U det V)), s = tr(diag(d) S) / sum_j ||x_j||^2 and
+    the translation that maps mean(sim) onto mean(ref) (Umeyama 1991). S keeps R a rotation: a
+    mirror image of the reference stays a mirror image. A frame whose simulated joints all
+    coincide gets s = 0 (every joint lands on the reference's centroid). All frames at once.
+    """
+    sim, ref = _check(sim, ref)
+    mu_sim, mu_ref = sim.mean(axis=1, keepdims=True), ref.mean(axis=1, keepdims=True)
+    x, y = sim - mu_sim, ref - mu_ref
+    cov = np.einsum("tji,tjk->tik", y, x)  # (T, 3, 3): sum over joints of y_j x_j^T
+    u, d, vt = np.linalg.svd(cov)
+    # Reflection correction: if U V^T would be a reflection, flip the axis of the smallest
+    # singular value (the cheapest one to get wrong) so R is a proper rotation.
+    flip = np.where(np.linalg.det(u) * np.linalg.det(vt) < 0.0, -1.0, 1.0)
+    u[:, :, 2] *= flip[:, None]
+    d[:, 2] *= flip
+    rot = u @ vt
+    var = np.einsum("tji,tji->t", x, x)
+    scale = np.divide(d.sum(axis=1), var, out=np.zeros_like(var), where=var > 0.0)
+    # rotate each joint (a row vector) by R: x R^T
+    return scale[:, None, None] * (x @ rot.transpose(0, 2, 1)) + mu_ref
+
+
+def mpjpe_pa(sim, ref) -> float:
+    """E_pa-mpjpe in mm: mean over frames and bodies of ||aligned sim - ref|| after the per-frame
+    similarity alignment of `procrustes_align` (rotation, translation, uniform scale)."""
+    sim, ref = _check(sim, ref)
+    return _mean_norm(procrustes_align(sim, ref) - ref)
+
+
 def accel_error(sim, ref) -> float:
     """E_acc in mm/frame^2 from second differences (not divided by dt^2); NaN when T < 3."""
     sim, ref = _check(sim, ref)
@@ -114,38 +174,73 @@ def vel_error(sim, ref) -> float:
 
 
 def clip_metrics(sim, ref, threshold: float = 0.5) -> dict:
-    """All metrics of one clip: success, frames, mpjpe_g, mpjpe_l, accel, vel, fail_frame."""
+    """All metrics of one clip: success, frames, the errors (ERROR_KEYS, in mm), the number of
+    frames each error averages over (frames_pos, frames_vel, frames_acc; see COUNT_KEYS) and
+    fail_frame."""
     sim, ref = _check(sim, ref)
     fail = _fail_frame(body_distance(sim, ref), threshold)
+    T = int(sim.shape[0])
     return {
         "success": fail < 0,
-        "frames": int(sim.shape[0]),
+        "frames": T,
         "mpjpe_g": mpjpe_global(sim, ref),
         "mpjpe_l": mpjpe_local(sim, ref),
+        "mpjpe_pa": mpjpe_pa(sim, ref),
         "accel": accel_error(sim, ref),
         "vel": vel_error(sim, ref),
+        **{key: max(T - lost, 0) for key, lost in _LOST.items()},
         "fail_frame": fail,
     }
 
 
-def _nanmean(values) -> float:
-    """Mean of the non-NaN values, NaN if there are none (np.nanmean would warn)."""
-    a = np.asarray(list(values), dtype=float)
+def _count(row: dict, error_key: str) -> int:
+    """Frames the row's `error_key` averages over. Rows written before the counts existed carry
+    only `frames` (T); the count then follows from the difference order."""
+    count_key = COUNT_KEYS[error_key]
+    if count_key in row:
+        return int(row[count_key])
+    return max(int(row["frames"]) - _LOST[count_key], 0)
+
+
+def _frame_mean(rows: list[dict], key: str) -> float:
+    """Frame-weighted mean of the rows' `key`: sum_i n_i e_i / sum_i n_i, i.e. the mean of all
+    their per-frame errors pooled (PHC). Rows whose value is NaN or counts no frame are skipped;
+    NaN if none is left."""
+    pairs = [(float(r.get(key, math.nan)), _count(r, key)) for r in rows]
+    pairs = [(e, n) for e, n in pairs if not math.isnan(e) and n > 0]
+    if not pairs:
+        return math.nan
+    e, n = np.array(pairs).T
+    return float((n * e).sum() / n.sum())
+
+
+def _clip_mean(rows: list[dict], key: str) -> float:
+    """Mean of the rows' `key` with every clip weighted equally; NaN values are skipped and NaN
+    if none is left (np.nanmean would warn)."""
+    a = np.array([r.get(key, math.nan) for r in rows], dtype=float)
     a = a[~np.isnan(a)]
     return float(a.mean()) if a.size else math.nan
 
 
 def summarize(rows: list[dict]) -> dict:
-    """Aggregate row: clips, success_rate, errors over successful clips, and all_* over all clips."""
+    """Aggregate row of clip_metrics rows (definitions in the module docstring).
+
+    clips, success_rate; per error key (ERROR_KEYS), in mm:
+      key                 frame-weighted over the successful clips (PHC's numbers)
+      all_key             frame-weighted over all clips
+      clip_mean_key       mean of the per-clip values over the successful clips
+      clip_mean_all_key   mean of the per-clip values over all clips
+    """
     ok = [r for r in rows if r["success"]]
     out = {
         "clips": len(rows),
         "success_rate": len(ok) / len(rows) if rows else math.nan,
     }
-    for key in ERROR_KEYS:
-        out[key] = _nanmean(r[key] for r in ok)
-    for key in ERROR_KEYS:
-        out["all_" + key] = _nanmean(r[key] for r in rows)
+    for prefix, agg in (("", _frame_mean), ("clip_mean_", _clip_mean)):
+        for key in ERROR_KEYS:
+            out[prefix + key] = agg(ok, key)
+        for key in ERROR_KEYS:
+            out[prefix + "all_" + key] = agg(rows, key)
     return out
 
 
@@ -160,24 +255,25 @@ def format_table(rows: list[dict], summary: dict | None = None, names_key: str =
         summary = summarize(rows)
     names = [str(r.get(names_key, i)) for i, r in enumerate(rows)]
     w = max([len("clip"), len("ALL"), *map(len, names)])
-    cols = (("succ", 6), ("frames", 7), ("E_g-mpjpe", 10), ("E_mpjpe", 8), ("E_acc", 11), ("E_vel", 9))
+    cols = (("succ", 6), ("frames", 7), ("E_g-mpjpe", 10), ("E_mpjpe", 8), ("E_pa-mpjpe", 10),
+            ("E_acc", 11), ("E_vel", 9))
 
     def line(cells):
         return "  ".join([cells[0].ljust(w)] + [c.rjust(n) for c, (_, n) in zip(cells[1:], cols)])
 
     lines = [
         line(["clip"] + [h for h, _ in cols]),
-        line(["", "", "", "mm", "mm", "mm/frame^2", "mm/frame"]),
+        line(["", "", "", "mm", "mm", "mm", "mm/frame^2", "mm/frame"]),
     ]
     lines.append("-" * len(lines[0]))
     for name, r in zip(names, rows):
         lines.append(line([name, "yes" if r["success"] else "no", str(int(r["frames"]))]
-                          + [_num(r[k]) for k in ERROR_KEYS]))
+                          + [_num(r.get(k)) for k in ERROR_KEYS]))
     rate = summary["success_rate"]
     lines.append("-" * len(lines[0]))
     lines.append(line(["ALL", "-" if math.isnan(rate) else f"{100 * rate:.1f}%",
                        str(sum(int(r["frames"]) for r in rows))]
-                      + [_num(summary[k]) for k in ERROR_KEYS]))
+                      + [_num(summary.get(k)) for k in ERROR_KEYS]))
     return "\n".join(lines)
 
 

@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 import pytest
+from scipy.optimize import minimize
+from scipy.spatial.transform import Rotation
 
 from smpl_envs import metrics as M
 
@@ -74,6 +76,92 @@ def test_quadratic_trajectory():
     assert M.mpjpe_global(sim, ref) == pytest.approx(6.0, rel=1e-12)
 
 
+def random_similarity(T, rng):
+    """Per frame a random rotation (T, 3, 3), scale in [0.5, 2) and translation of metres."""
+    return (Rotation.random(T, random_state=rng).as_matrix(), rng.uniform(0.5, 2.0, T),
+            rng.normal(scale=3.0, size=(T, 1, 3)))
+
+
+def apply(sim, rot, scale, shift):
+    return scale[:, None, None] * np.einsum("tik,tjk->tji", rot, sim) + shift
+
+
+def test_pa_mpjpe_aligns_away_rotation_scale_and_translation():
+    ref = walk(T=12)
+    rot, scale, shift = random_similarity(len(ref), np.random.default_rng(1))
+    sim = apply(ref, rot, scale, shift)
+    assert M.mpjpe_global(sim, ref) > 100.0  # far off before alignment
+    np.testing.assert_allclose(M.procrustes_align(sim, ref), ref, atol=1e-12)
+    assert M.mpjpe_pa(sim, ref) == pytest.approx(0.0, abs=1e-9)
+    assert M.clip_metrics(sim, ref, threshold=math.inf)["mpjpe_pa"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_pa_mpjpe_of_a_known_perturbation():
+    """ref + E with E orthogonal to what a similarity transform can change (sum_j e_j = 0 and
+    Y^T E = 0 for the centred reference Y): the optimal rotation is the identity, the optimal
+    scale s = |Y|^2 / (|Y|^2 + |E|^2) (Frobenius norms), so joint j ends up off by
+    ||(s - 1) y_j + s e_j||. Moving the result by any similarity transform changes nothing."""
+    rng = np.random.default_rng(2)
+    ref = walk(T=6)
+    y = ref - ref.mean(axis=1, keepdims=True)
+    basis = np.concatenate([np.ones((len(ref), J, 1)), y], axis=2)  # (T, J, 4): [1, Y]
+    raw = rng.normal(scale=0.03, size=ref.shape)
+    e = np.stack([r - b @ np.linalg.lstsq(b, r, rcond=None)[0] for r, b in zip(raw, basis)])
+    np.testing.assert_allclose(np.einsum("tji,tjk->tik", basis, e), 0.0, atol=1e-12)
+    s = (y ** 2).sum(axis=(1, 2)) / ((y ** 2).sum(axis=(1, 2)) + (e ** 2).sum(axis=(1, 2)))
+    s = s[:, None, None]
+    want = 1000 * np.linalg.norm((s - 1) * y + s * e, axis=-1).mean()
+    assert 5.0 < want < 100.0  # a visible error, not a rounding artefact
+    assert M.mpjpe_pa(ref + e, ref) == pytest.approx(want, rel=1e-9)
+    moved = apply(ref + e, *random_similarity(len(ref), rng))
+    assert M.mpjpe_pa(moved, ref) == pytest.approx(want, rel=1e-9)
+
+
+def _best_similarity_by_search(sim, ref):
+    """Independent check of one frame: minimise the squared error over rotation vector, log scale
+    and translation numerically (several starts), return the mean joint error there, in mm."""
+    def moved(p):
+        return np.exp(p[3]) * sim @ Rotation.from_rotvec(p[:3]).as_matrix().T + p[4:]
+
+    def cost(p):
+        return ((moved(p) - ref) ** 2).sum()
+
+    rng = np.random.default_rng(0)
+    starts = [np.concatenate([Rotation.random(random_state=rng).as_rotvec(), [0.0],
+                              ref.mean(0) - sim.mean(0)]) for _ in range(8)]
+    best = min((minimize(cost, p0, method="BFGS", options={"gtol": 1e-12}) for p0 in starts),
+               key=lambda r: r.fun)
+    return 1000 * np.linalg.norm(moved(best.x) - ref, axis=-1).mean()
+
+
+def test_pa_mpjpe_is_the_optimum_and_a_reflection_is_not_aligned_away():
+    ref = walk(T=3, seed=5)
+    mirror = ref * np.array([-1.0, 1.0, 1.0])  # a mirror image: no rotation maps it back
+    noisy = ref + np.random.default_rng(4).normal(scale=0.05, size=ref.shape)
+    for sim in (mirror, noisy):
+        got = 1000 * np.linalg.norm(M.procrustes_align(sim, ref) - ref, axis=-1).mean(axis=1)
+        want = [_best_similarity_by_search(s, r) for s, r in zip(sim, ref)]
+        np.testing.assert_allclose(got, want, rtol=1e-5)
+    # the mirror stays far off: an improper "rotation" would have matched it exactly
+    assert M.mpjpe_pa(mirror, ref) > 200.0
+    aligned = M.procrustes_align(mirror, ref)
+    x, y = mirror - mirror.mean(1, keepdims=True), aligned - aligned.mean(1, keepdims=True)
+    # what was applied is a proper rotation times a positive scale (det > 0)
+    for xt, yt in zip(x, y):
+        a = np.linalg.lstsq(xt, yt, rcond=None)[0]
+        assert np.linalg.det(a) > 0
+
+
+def test_pa_mpjpe_degenerate_frames():
+    ref = walk(T=4)
+    collapsed = np.repeat(ref.mean(axis=1, keepdims=True), J, axis=1)  # every joint in one place
+    want = 1000 * np.linalg.norm(ref - ref.mean(axis=1, keepdims=True), axis=-1).mean()
+    with np.errstate(all="raise"):
+        assert M.mpjpe_pa(collapsed, ref) == pytest.approx(want, rel=1e-12)
+        one = M.mpjpe_pa(ref[:, :1] + 1.0, ref[:, :1])  # a single joint: only translation matters
+    assert one == pytest.approx(0.0, abs=1e-9)
+
+
 @pytest.mark.filterwarnings("error")
 def test_short_clips_give_nan_without_warnings():
     ref = walk(T=2)
@@ -109,9 +197,21 @@ def test_success_threshold_boundary_and_fail_frame():
 def test_clip_metrics_keys_and_types():
     ref = walk()
     m = M.clip_metrics(ref + 0.01, ref)
-    assert set(m) == {"success", "frames", "mpjpe_g", "mpjpe_l", "accel", "vel", "fail_frame"}
+    assert set(m) == {"success", "frames", "mpjpe_g", "mpjpe_l", "mpjpe_pa", "accel", "vel",
+                      "frames_pos", "frames_vel", "frames_acc", "fail_frame"}
     assert type(m["success"]) is bool and type(m["frames"]) is int and type(m["fail_frame"]) is int
     assert all(type(m[k]) is float for k in M.ERROR_KEYS)
+    assert all(type(m[k]) is int for k in ("frames_pos", "frames_vel", "frames_acc"))
+
+
+@pytest.mark.parametrize("T", [1, 2, 3, 10])
+def test_clip_metrics_frame_counts(T):
+    """Each count is the number of per-frame values its error averages: T positions, T - 1 first
+    differences, T - 2 second differences (never negative)."""
+    ref = walk(T=T)
+    m = M.clip_metrics(ref + 0.01, ref)
+    assert (m["frames"], m["frames_pos"], m["frames_vel"], m["frames_acc"]) == \
+           (T, T, max(T - 1, 0), max(T - 2, 0))
 
 
 @pytest.mark.parametrize("sim, ref, msg", [
@@ -138,29 +238,117 @@ def test_non_finite_raises(bad):
 
 
 def rows():
-    """Two successful clips (one too short for accel) and one failed clip with large errors."""
+    """Two successful clips (one too short for accel) and one failed clip with large errors, as
+    clip_metrics writes them (frame counts T, T - 1, T - 2; the failed clip ends at its failure)."""
     return [
         {"name": "walk", "success": True, "frames": 100, "fail_frame": -1,
-         "mpjpe_g": 10.0, "mpjpe_l": 8.0, "accel": 2.0, "vel": 3.0},
+         "mpjpe_g": 10.0, "mpjpe_l": 8.0, "mpjpe_pa": 6.0, "accel": 2.0, "vel": 3.0,
+         "frames_pos": 100, "frames_vel": 99, "frames_acc": 98},
         {"name": "jump", "success": True, "frames": 2, "fail_frame": -1,
-         "mpjpe_g": 20.0, "mpjpe_l": 12.0, "accel": math.nan, "vel": 5.0},
-        {"name": "cartwheel", "success": False, "frames": 50, "fail_frame": 17,
-         "mpjpe_g": 300.0, "mpjpe_l": 100.0, "accel": 8.0, "vel": 10.0},
+         "mpjpe_g": 20.0, "mpjpe_l": 12.0, "mpjpe_pa": 9.0, "accel": math.nan, "vel": 5.0,
+         "frames_pos": 2, "frames_vel": 1, "frames_acc": 0},
+        {"name": "cartwheel", "success": False, "frames": 50, "fail_frame": 49,
+         "mpjpe_g": 300.0, "mpjpe_l": 100.0, "mpjpe_pa": 80.0, "accel": 8.0, "vel": 10.0,
+         "frames_pos": 50, "frames_vel": 49, "frames_acc": 48},
     ]
 
 
-def test_summarize_over_successful_clips():
+def test_summarize_frame_weighted_over_successful_clips():
     s = M.summarize(rows())
     assert s["clips"] == 3
     assert s["success_rate"] == pytest.approx(2 / 3)
-    assert s["mpjpe_g"] == pytest.approx(15.0)
-    assert s["mpjpe_l"] == pytest.approx(10.0)
-    assert s["accel"] == pytest.approx(2.0)  # jump's NaN is skipped
-    assert s["vel"] == pytest.approx(4.0)
-    assert s["all_mpjpe_g"] == pytest.approx(110.0)
-    assert s["all_mpjpe_l"] == pytest.approx(40.0)
-    assert s["all_accel"] == pytest.approx(5.0)
-    assert s["all_vel"] == pytest.approx(6.0)
+    # successful clips: walk (100 frames) and jump (2 frames), each frame weighs the same
+    assert s["mpjpe_g"] == pytest.approx((100 * 10.0 + 2 * 20.0) / 102)
+    assert s["mpjpe_l"] == pytest.approx((100 * 8.0 + 2 * 12.0) / 102)
+    assert s["mpjpe_pa"] == pytest.approx((100 * 6.0 + 2 * 9.0) / 102)
+    assert s["accel"] == pytest.approx(2.0)  # jump has no second difference (and a NaN)
+    assert s["vel"] == pytest.approx((99 * 3.0 + 1 * 5.0) / 100)
+    # all clips, cartwheel's 50 frames up to its failure included
+    assert s["all_mpjpe_g"] == pytest.approx((100 * 10.0 + 2 * 20.0 + 50 * 300.0) / 152)
+    assert s["all_mpjpe_l"] == pytest.approx((100 * 8.0 + 2 * 12.0 + 50 * 100.0) / 152)
+    assert s["all_mpjpe_pa"] == pytest.approx((100 * 6.0 + 2 * 9.0 + 50 * 80.0) / 152)
+    assert s["all_accel"] == pytest.approx((98 * 2.0 + 48 * 8.0) / 146)
+    assert s["all_vel"] == pytest.approx((99 * 3.0 + 1 * 5.0 + 49 * 10.0) / 149)
+
+
+def test_summarize_keeps_the_per_clip_mean_view():
+    s = M.summarize(rows())
+    assert s["clip_mean_mpjpe_g"] == pytest.approx(15.0)
+    assert s["clip_mean_mpjpe_l"] == pytest.approx(10.0)
+    assert s["clip_mean_mpjpe_pa"] == pytest.approx(7.5)
+    assert s["clip_mean_accel"] == pytest.approx(2.0)  # jump's NaN is skipped
+    assert s["clip_mean_vel"] == pytest.approx(4.0)
+    assert s["clip_mean_all_mpjpe_g"] == pytest.approx(110.0)
+    assert s["clip_mean_all_mpjpe_l"] == pytest.approx(40.0)
+    assert s["clip_mean_all_accel"] == pytest.approx(5.0)
+    assert s["clip_mean_all_vel"] == pytest.approx(6.0)
+
+
+@pytest.mark.parametrize("kind", ["position", "velocity", "acceleration"])
+def test_two_clips_of_different_lengths_weigh_by_frames(kind):
+    """Known answer: a short and a long clip, each with a constant per-frame error of a known
+    size. The aggregate is the mean over all their frames (PHC), not the mean of the two means."""
+    direction = np.array([0.6, 0.8, 0.0])
+
+    def clip(T, mm):
+        ref = walk(T=T, seed=T)
+        t = np.arange(T)[:, None, None]
+        # the error is constant per frame in the kind measured: an offset (position), a drift
+        # of mm per frame (velocity) or e = c t^2 whose second difference is 2c (acceleration)
+        shape = {"position": np.ones_like(t), "velocity": t, "acceleration": t ** 2 / 2.0}[kind]
+        return {"name": f"T{T}", **M.clip_metrics(ref + shape * direction * mm / 1000.0, ref,
+                                                   threshold=math.inf)}
+
+    key = {"position": "mpjpe_g", "velocity": "vel", "acceleration": "accel"}[kind]
+    lost = {"position": 0, "velocity": 1, "acceleration": 2}[kind]
+    short, long = clip(8, 10.0), clip(68, 40.0)
+    assert short[key] == pytest.approx(10.0, rel=1e-9) and long[key] == pytest.approx(40.0, rel=1e-9)
+    n_short, n_long = 8 - lost, 68 - lost
+    s = M.summarize([short, long])
+    want = (n_short * 10.0 + n_long * 40.0) / (n_short + n_long)
+    assert s[key] == pytest.approx(want, rel=1e-9) and s["all_" + key] == pytest.approx(want, rel=1e-9)
+    assert s["clip_mean_" + key] == pytest.approx(25.0, rel=1e-9)
+    assert abs(s[key] - 25.0) > 5.0  # the two views really differ here
+
+
+def test_summarize_equals_pooling_every_frame_error():
+    """The aggregate of clip_metrics rows equals PHC's computation: per-frame errors of all clips
+    concatenated, then averaged; also for a failed clip, measured up to its failure frame."""
+    rng = np.random.default_rng(3)
+    clips = []
+    for T in (3, 17, 40):
+        ref = walk(T=T, seed=T)
+        clips.append((ref + rng.normal(scale=0.02, size=ref.shape), ref))
+    clips.append((clips[0][0] + 1.0, clips[0][1]))  # 1 m off everywhere: fails on its first frame
+    rows_ = [M.clip_metrics(sim, ref) for sim, ref in clips]
+    assert [r["success"] for r in rows_] == [True, True, True, False]
+
+    def per_frame(sim, ref):
+        e = sim - ref
+        local = (sim - sim[:, :1]) - (ref - ref[:, :1])
+        pa = M.procrustes_align(sim, ref) - ref
+        return {"mpjpe_g": e, "mpjpe_l": local, "mpjpe_pa": pa,
+                "vel": np.diff(e, axis=0), "accel": np.diff(e, 2, axis=0)}
+
+    frames = [per_frame(sim, ref) for sim, ref in clips]
+    s = M.summarize(rows_)
+    for key in M.ERROR_KEYS:
+        pooled = [1000 * np.linalg.norm(f[key], axis=-1).mean(axis=1) for f in frames]
+        assert s[key] == pytest.approx(np.concatenate(pooled[:3]).mean(), rel=1e-12), key
+        assert s["all_" + key] == pytest.approx(np.concatenate(pooled).mean(), rel=1e-12), key
+
+
+def test_summarize_counts_from_rows_not_frames():
+    """Evaluation may count a diverged final frame in `frames` that no error measures; the weights
+    are the recorded counts. Rows without counts (older results) fall back on `frames`."""
+    a, b = rows()[:2]
+    a_more = {**a, "frames": 500}  # frames_pos etc. unchanged
+    assert M.summarize([a_more, b])["mpjpe_g"] == pytest.approx(M.summarize([a, b])["mpjpe_g"])
+    old = [{k: v for k, v in r.items() if not k.startswith("frames_")} for r in rows()]
+    new, legacy = M.summarize(rows()), M.summarize(old)
+    for key in M.ERROR_KEYS:
+        assert legacy[key] == pytest.approx(new[key], nan_ok=True), key
+        assert legacy["all_" + key] == pytest.approx(new["all_" + key]), key
 
 
 @pytest.mark.filterwarnings("error")
@@ -176,14 +364,16 @@ def test_summarize_degenerate_inputs():
 def test_format_table():
     text = M.format_table(rows())
     lines = text.splitlines()
-    assert lines[0].split() == ["clip", "succ", "frames", "E_g-mpjpe", "E_mpjpe", "E_acc", "E_vel"]
+    assert lines[0].split() == ["clip", "succ", "frames", "E_g-mpjpe", "E_mpjpe", "E_pa-mpjpe",
+                                "E_acc", "E_vel"]
     assert "mm/frame^2" in lines[1] and "mm/frame" in lines[1]
     for r in rows():
         line = next(ln for ln in lines if ln.startswith(r["name"] + " "))
         assert line.split()[1] == ("yes" if r["success"] else "no")
-    assert next(ln for ln in lines if ln.startswith("jump ")).split()[3:] == ["20.0", "12.0", "-", "5.0"]
+    assert next(ln for ln in lines if ln.startswith("jump ")).split()[3:] == ["20.0", "12.0", "9.0", "-", "5.0"]
     all_line = lines[-1].split()
-    assert all_line == ["ALL", "66.7%", "152", "15.0", "10.0", "2.0", "4.0"]
+    # frame-weighted: (100 * 10 + 2 * 20) / 102 = 10.2 mm etc.
+    assert all_line == ["ALL", "66.7%", "152", "10.2", "8.1", "6.1", "2.0", "3.0"]
     assert len({len(ln) for ln in lines}) == 1  # fixed width
     # a different name key, and a given summary is used as is
     renamed = [{"clip_id": r["name"], **r} for r in rows()]

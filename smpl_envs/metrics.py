@@ -244,13 +244,21 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
-def _num(x: float) -> str:
-    return "-" if x is None or math.isnan(x) else f"{x:.1f}"
+def _num(x) -> str:
+    """One decimal; '-' for an undefined value (None, as JSON writes NaN, or NaN itself)."""
+    return "-" if x is None or not math.isfinite(x) else f"{x:.1f}"
 
 
 def format_table(rows: list[dict], summary: dict | None = None, names_key: str = "name") -> str:
-    """Fixed-width text table: one line per clip, then ALL (success %, total frames, errors over
-    successful clips). Undefined values (NaN) print as '-'."""
+    """Fixed-width text table: one line per clip (errors over the frames it tracked, i.e. up to
+    its failure frame), then the ALL line (success %, total frames, aggregate errors) and a legend
+    line saying what the ALL errors are.
+
+    ALL shows the frame-weighted errors over the successful clips (PHC's numbers). When no clip
+    succeeded those are undefined, so ALL shows the frame-weighted errors over all the frames
+    tracked (the ``all_*`` aggregates) instead, and the legend says so. Undefined values print as
+    '-', never 'nan'. A given summary is used as is.
+    """
     if summary is None:
         summary = summarize(rows)
     names = [str(r.get(names_key, i)) for i, r in enumerate(rows)]
@@ -269,11 +277,21 @@ def format_table(rows: list[dict], summary: dict | None = None, names_key: str =
     for name, r in zip(names, rows):
         lines.append(line([name, "yes" if r["success"] else "no", str(int(r["frames"]))]
                           + [_num(r.get(k)) for k in ERROR_KEYS]))
-    rate = summary["success_rate"]
+    rate = summary.get("success_rate")
+    rate = math.nan if rate is None else float(rate)  # None: NaN read back from JSON
+    if math.isnan(rate):
+        prefix, legend = "", "ALL: no clips."
+    elif rate > 0.0:
+        prefix, legend = "", ("ALL: errors over the frames of the successful clips, every frame "
+                              "weighted equally (PHC).")
+    else:
+        prefix, legend = "all_", ("ALL: no clip succeeded; errors over all frames tracked (each "
+                                  "clip up to its failure frame), every frame weighted equally.")
     lines.append("-" * len(lines[0]))
     lines.append(line(["ALL", "-" if math.isnan(rate) else f"{100 * rate:.1f}%",
                        str(sum(int(r["frames"]) for r in rows))]
-                      + [_num(summary.get(k)) for k in ERROR_KEYS]))
+                      + [_num(summary.get(prefix + k)) for k in ERROR_KEYS]))
+    lines.append(legend + " '-': undefined.")
     return "\n".join(lines)
 
 

@@ -371,15 +371,40 @@ def test_format_table():
         line = next(ln for ln in lines if ln.startswith(r["name"] + " "))
         assert line.split()[1] == ("yes" if r["success"] else "no")
     assert next(ln for ln in lines if ln.startswith("jump ")).split()[3:] == ["20.0", "12.0", "9.0", "-", "5.0"]
-    all_line = lines[-1].split()
+    all_line = lines[-2].split()
     # frame-weighted: (100 * 10 + 2 * 20) / 102 = 10.2 mm etc.
     assert all_line == ["ALL", "66.7%", "152", "10.2", "8.1", "6.1", "2.0", "3.0"]
-    assert len({len(ln) for ln in lines}) == 1  # fixed width
+    assert lines[-1].startswith("ALL:") and "successful clips" in lines[-1]
+    assert len({len(ln) for ln in lines[:-1]}) == 1  # fixed width (all but the legend)
     # a different name key, and a given summary is used as is
     renamed = [{"clip_id": r["name"], **r} for r in rows()]
     s = {**M.summarize(rows()), "success_rate": 0.5}
     text = M.format_table(renamed, s, names_key="clip_id")
-    assert "cartwheel" in text and text.splitlines()[-1].split()[1] == "50.0%"
+    assert "cartwheel" in text and text.splitlines()[-2].split()[1] == "50.0%"
+
+
+def test_format_table_without_a_successful_clip_shows_tracked_frames():
+    """No clip succeeded: the success-only aggregates are NaN; the ALL line shows the errors over
+    all frames tracked instead, says so in the legend, and never prints 'nan'."""
+    failed = rows()[2:] + [{**rows()[1], "name": "jump", "success": False, "fail_frame": 1}]
+    s = M.summarize(failed)
+    assert math.isnan(s["mpjpe_g"]) and s["success_rate"] == 0.0
+    for summary in (s, json.loads(M.to_json(failed, s))["summary"]):  # NaN read back as None
+        lines = M.format_table(failed, summary).splitlines()
+        assert "nan" not in "\n".join(lines).lower()
+        want = [s["all_" + k] for k in M.ERROR_KEYS]
+        assert want[0] == pytest.approx((50 * 300.0 + 2 * 20.0) / 52)
+        assert lines[-2].split() == ["ALL", "0.0%", "52"] + [f"{v:.1f}" for v in want]
+        assert lines[-1].startswith("ALL:") and "no clip succeeded" in lines[-1]
+        assert "all frames tracked" in lines[-1]
+    # every clip too short for an error: that column shows '-', still no 'nan'
+    short = [{**rows()[1], "success": False}]
+    text = M.format_table(short)
+    assert "nan" not in text.lower() and text.splitlines()[-2].split()[-2] == "-"
+    # no clips at all
+    empty = M.format_table([], M.summarize([]))
+    assert "nan" not in empty.lower() and empty.splitlines()[-2].split()[1:] == ["-", "0"] + ["-"] * 5
+    assert empty.splitlines()[-1].startswith("ALL: no clips")
 
 
 def test_to_json_round_trip():

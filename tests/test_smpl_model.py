@@ -73,6 +73,8 @@ def test_recipe_gives_back_reference_geometry(model_path):
 def test_mesh_variant_is_hulls_with_same_masses(model_path):
     prim = skeleton_from_smpl(model_path, betas=[0.5, 0.5])
     mesh = skeleton_from_smpl(model_path, betas=[0.5, 0.5], mesh=True)
+    # Same file, same code path (the bones are computed before `mesh` is looked at), same
+    # process: bit-identical is a fair demand here.
     np.testing.assert_array_equal(mesh.offsets, prim.offsets)
     for name, g, p in zip(BODY_NAMES, mesh.geoms, prim.geoms):
         assert g.kind == "mesh" and g.vertices.shape[1] == 3 and len(g.vertices) >= 4, name
@@ -140,12 +142,17 @@ def test_npz_pkl_and_chumpy_pkl_load_identically(files):
     np.testing.assert_array_equal(ref.parents, SMPL_PARENTS)
     assert ref.parents[0] == -1 and ref.J_regressor.shape == (NUM_BODIES, len(ref.v_template))
     for k, m in models.items():
+        # The stored arrays themselves are read, not computed: loading must be lossless, bit for bit.
         for field in ("v_template", "shapedirs", "J_regressor", "weights", "parents", "faces"):
             np.testing.assert_array_equal(getattr(m, field), getattr(ref, field), err_msg=k)
+    # What is computed from them may differ in the last bits: the arrays from the three formats
+    # can differ in memory layout, and BLAS picks kernels (and summation orders) by layout and CPU
+    # (4.4e-16 m seen with numpy 2.4 on an AVX-512 machine). Equal up to rounding is the claim.
     sks = [skeleton_from_smpl(p, betas=[1.0, -0.5, 0.3]) for p in files.values()]
-    for sk in sks[1:]:
-        np.testing.assert_array_equal(sk.offsets, sks[0].offsets)
-        assert sk.mass == sks[0].mass
+    for name, sk in zip(list(files)[1:], sks[1:]):
+        np.testing.assert_allclose(sk.offsets, sks[0].offsets, rtol=0, atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(sk.pelvis_smpl, sks[0].pelvis_smpl, rtol=0, atol=1e-12, err_msg=name)
+        assert sk.mass == pytest.approx(sks[0].mass, rel=1e-12, abs=0), name
 
 
 def test_directory_of_models_by_gender(tmp_path):

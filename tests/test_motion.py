@@ -1,3 +1,4 @@
+import pickle
 from pathlib import Path
 
 import joblib
@@ -12,6 +13,7 @@ from smpl_envs.motion import (
 )
 from smpl_envs.motion.export import to_amass, to_phc_pkl
 from smpl_envs.motion.library import CLIPS_DIR
+from smpl_envs.motion.motion import FORMAT_NAME, FORMAT_VERSION
 from smpl_envs.humanoid.kinematics import lowest_point
 from smpl_envs.humanoid.skeleton import MEAN_SKELETON
 from smpl_envs.rotations import quat_apply, yaw_quat
@@ -148,10 +150,29 @@ def _amass(path, **override):
     return path
 
 
+def _own(path, **override):
+    identity = np.zeros((5, 24, 4))
+    identity[..., 0] = 1
+    data = dict(format=FORMAT_NAME, version=FORMAT_VERSION, fps=30.0, root_pos=np.zeros((5, 3)),
+                local_quat=identity)
+    data.update(override)
+    np.savez(path, **data)
+    return path
+
+
 @pytest.mark.parametrize("make, reason", [
     (lambda p: p.write_bytes(b"definitely not a zip") and p, "not a .npz"),
     (lambda p: _amass(p, trans=None), "without 'trans'"),
-    (lambda p: _amass(p, poses=np.zeros((10, 50))), "50 columns"),
+    (lambda p: _amass(p, poses=np.zeros((10, 50))), r"shape \(10, 50\), expected \(T, 72\) for SMPL"),
+    (lambda p: _amass(p, poses=np.zeros((10, 52, 3))), r"shape \(10, 52, 3\), expected \(T, 72\) for SMPL"),
+    (lambda p: _amass(p, poses=np.zeros(72), trans=np.zeros(3)), r"shape \(72,\), expected \(T, 72\)"),
+    (lambda p: _amass(p, trans=np.zeros((10, 3, 1))), r"'trans' has shape \(10, 3, 1\), expected \(T, 3\)"),
+    (lambda p: _amass(p, betas="tall"), "'betas' must be body shape coefficients"),
+    (lambda p: _amass(p, poses=None, trans=np.zeros((0, 3)), root_orient=np.zeros((0, 3)),
+                      pose_body=np.zeros((0, 63))), r"'root_orient' has no frames.*\(T, 3\)"),
+    (lambda p: _own(p, root_pos=np.zeros((0, 3)), local_quat=np.zeros((0, 24, 4))),
+     r"'root_pos' has no frames.*\(T, 3\)"),
+    (lambda p: _own(p, local_quat=np.zeros((5, 96))), r"shape \(5, 96\), expected \(T, 24, 4\)"),
     (lambda p: _amass(p, poses=np.full((10, 156), np.nan)), "NaN"),
     (lambda p: _amass(p, poses=np.zeros((0, 156)), trans=np.zeros((0, 3))), "no frames"),
     (lambda p: _amass(p, mocap_framerate=-5.0), "frame rate must be positive"),
@@ -164,6 +185,49 @@ def test_malformed_files_name_the_file_and_the_problem(tmp_path, make, reason):
     with pytest.raises(MotionFileError, match=reason) as err:
         load_motion(path)
     assert str(path) in str(err.value)
+
+
+def _phc(path, dump=joblib.dump, **override):
+    seq = dict(pose_aa=np.zeros((5, 72)), trans=np.zeros((5, 3)), fps=30)
+    seq.update(override)
+    dump({"seq": seq}, path)
+    return path
+
+
+def _pickle_dump(obj, path):
+    with open(path, "wb") as f:
+        pickle.dump(obj, f)
+
+
+@pytest.mark.parametrize("make, reason", [
+    (lambda p: _phc(p, pose_aa=np.zeros((0, 72)), trans=np.zeros((0, 3))),
+     r"'seq.pose_aa' has no frames.*expected \(T, 72\) or \(T, 24, 3\)"),
+    (lambda p: _phc(p, _pickle_dump, pose_aa=np.zeros((0, 72)), trans=np.zeros((0, 3))),
+     r"'seq.pose_aa' has no frames"),
+    (lambda p: _phc(p, pose_aa=np.zeros((5, 2, 24, 3))),
+     r"'seq.pose_aa' has shape \(5, 2, 24, 3\), expected \(T, 72\) or \(T, 24, 3\)"),
+    (lambda p: _phc(p, pose_aa=np.zeros(72)), r"'seq.pose_aa' has shape \(72,\)"),
+    (lambda p: _phc(p, pose_aa=0.0), r"'seq.pose_aa' has shape \(\)"),
+    (lambda p: _phc(p, pose_aa=[[0.0] * 72, [0.0] * 3]), "'seq.pose_aa' is not a rectangular array"),
+    (lambda p: _phc(p, trans=np.zeros((0, 3))), r"'seq.trans' has no frames.*\(T, 3\)"),
+    (lambda p: _phc(p, root_trans_offset=np.zeros((5, 1, 3))), r"'seq.root_trans_offset' has shape"),
+    (lambda p: _phc(p, beta="tall"), "'seq.beta' must be body shape coefficients"),
+])
+def test_malformed_phc_sequences_name_the_file_and_the_shape(tmp_path, make, reason):
+    path = make(tmp_path / "broken.pkl")
+    with pytest.raises(MotionFileError, match=reason) as err:
+        load_motion(path)
+    assert str(path) in str(err.value)
+    with pytest.warns(UserWarning, match="1 motion file"):  # in a tree: reported, not fatal
+        lib = MotionLib.load([path, "walk"], progress=False)
+    assert lib.names == ["walk"] and lib.errors[0][0] == str(path)
+
+
+def test_phc_pose_as_joints_reads_like_flat(tmp_path):
+    pose = 0.2 * np.sin(np.arange(5 * 72)).reshape(5, 72)
+    flat = load_motion(_phc(tmp_path / "flat.pkl", pose_aa=pose))
+    joints = load_motion(_phc(tmp_path / "joints.pkl", pose_aa=pose.reshape(5, 24, 3)))
+    np.testing.assert_allclose(joints.body_pos, flat.body_pos, atol=1e-12)
 
 
 def test_malformed_pickles_and_suffixes(tmp_path):

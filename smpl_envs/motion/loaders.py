@@ -19,6 +19,7 @@ from .motion import FORMAT_NAME, FORMAT_VERSION, RawMotion
 MOTION_SUFFIXES = (".npz", ".pkl")
 _M = SMPL_TO_BODY_FRAME
 _FRAME_QUAT = quat_from_matrix(_M)  # rotation taking SMPL-frame vectors to body-frame vectors
+_POSE_WIDTHS = {72: "SMPL", 156: "SMPL-H", 165: "SMPL-X", 66: "body joints only"}  # AMASS 'poses'
 
 
 class MotionFileError(ValueError):
@@ -61,18 +62,35 @@ def _as_str(value, default: str = "neutral") -> str:
     return s.strip().lower() or default
 
 
-def _check(path, name: str, arr: np.ndarray, shape: tuple) -> np.ndarray:
-    """Validate rank / trailing sizes (None = any) and finiteness of a per-frame array."""
-    arr = np.asarray(arr)
+def _check(path, name: str, value, *tails: tuple[int, ...], labels: tuple[str, ...] = ()) -> np.ndarray:
+    """A per-frame array (T, *tail) for one of `tails`, with T >= 1 frames, numeric and finite.
+    `labels` name what each tail means (e.g. "SMPL") in the error message."""
+    try:
+        arr = np.asarray(value)
+    except ValueError:  # ragged nested lists
+        raise MotionFileError(path, f"'{name}' is not a rectangular array") from None
     if arr.dtype.kind not in "fiu":
         raise MotionFileError(path, f"'{name}' must be numeric, got dtype {arr.dtype}")
-    if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
-        want = "(" + ", ".join("T" if s is None else str(s) for s in shape) + ")"
+    shapes = ["(T, " + ", ".join(map(str, t)) + ")" for t in tails]
+    if labels:
+        shapes = [f"{s} for {label}" for s, label in zip(shapes, labels)]
+    want = shapes[0] if len(shapes) == 1 else ", ".join(shapes[:-1]) + " or " + shapes[-1]
+    if arr.ndim == 0 or arr.shape[1:] not in tails:
         raise MotionFileError(path, f"'{name}' has shape {arr.shape}, expected {want}")
+    if len(arr) == 0:
+        raise MotionFileError(path, f"'{name}' has no frames (shape {arr.shape}); expected {want} "
+                                    "with T >= 1")
     if not np.all(np.isfinite(arr)):
         bad = np.argwhere(~np.isfinite(arr.reshape(len(arr), -1)))[0, 0]
         raise MotionFileError(path, f"'{name}' contains NaN or inf (first at frame {bad})")
     return arr.astype(np.float64)
+
+
+def _betas(path, name: str, value) -> np.ndarray:
+    try:
+        return np.asarray(value, float).ravel()
+    except (TypeError, ValueError):
+        raise MotionFileError(path, f"'{name}' must be body shape coefficients (numbers)") from None
 
 
 def _check_fps(path, fps) -> float:
@@ -86,8 +104,6 @@ def _check_fps(path, fps) -> float:
 
 
 def _from_smpl_pose(path, name, pose, pelvis, fps, betas, gender) -> RawMotion:
-    if len(pose) == 0:
-        raise MotionFileError(path, "the motion has no frames")
     if len(pelvis) != len(pose):
         raise MotionFileError(path, f"{len(pose)} pose frames but {len(pelvis)} translation frames")
     return RawMotion(name, fps, pelvis, smpl_pose_to_local_quat(pose.reshape(len(pose), -1, 3)),
@@ -96,27 +112,22 @@ def _from_smpl_pose(path, name, pose, pelvis, fps, betas, gender) -> RawMotion:
 
 def _read_amass(path, data, skeleton: Skeleton) -> RawMotion:
     if "poses" in data:
-        poses = _check(path, "poses", data["poses"], (None, None))
+        poses = _check(path, "poses", data["poses"], *[(w,) for w in _POSE_WIDTHS],
+                       labels=tuple(_POSE_WIDTHS.values()))
     elif "root_orient" in data and "pose_body" in data:  # SMPL-X "neutral" release layout
-        poses = np.concatenate([_check(path, "root_orient", data["root_orient"], (None, 3)),
-                                _check(path, "pose_body", data["pose_body"], (None, 63))], 1)
+        poses = np.concatenate([_check(path, "root_orient", data["root_orient"], (3,)),
+                                _check(path, "pose_body", data["pose_body"], (63,))], 1)
     else:
         raise MotionFileError(path, "AMASS file without 'poses'")
-    width = poses.shape[1]
-    if width == 72:
-        pose = poses  # SMPL: 24 joints
-    elif width in (156, 165, 66):
-        pose = poses[:, :66]  # SMPL-H / SMPL-X: root + 21 body joints; hands are not simulated
-    else:
-        raise MotionFileError(path, f"'poses' has {width} columns; expected 72 (SMPL), 156 (SMPL-H) "
-                                    "or 165 (SMPL-X)")
+    # SMPL-H / SMPL-X: only root + 21 body joints (66 columns) are used; hands are not simulated.
+    pose = poses if poses.shape[1] == 72 else poses[:, :66]
     if "trans" not in data:
         raise MotionFileError(path, "AMASS file without 'trans'")
-    trans = _check(path, "trans", data["trans"], (None, 3))
+    trans = _check(path, "trans", data["trans"], (3,))
     fps_key = next((k for k in ("mocap_framerate", "mocap_frame_rate", "fps") if k in data), None)
     if fps_key is None:
         raise MotionFileError(path, "no frame rate ('mocap_framerate' or 'mocap_frame_rate')")
-    betas = np.asarray(data["betas"], float).ravel() if "betas" in data else None
+    betas = _betas(path, "betas", data["betas"]) if "betas" in data else None
     # SMPL rotates the body about its rest pelvis joint, so the pelvis sits at trans + J0.
     pelvis = trans + skeleton.pelvis_smpl
     return _from_smpl_pose(path, Path(path).stem, pose, pelvis, _check_fps(path, data[fps_key]),
@@ -131,17 +142,15 @@ def _read_own(path, data) -> RawMotion:
     for key in ("fps", "root_pos", "local_quat"):
         if key not in data:
             raise MotionFileError(path, f"missing '{key}'")
-    root = _check(path, "root_pos", data["root_pos"], (None, 3))
-    quat = _check(path, "local_quat", data["local_quat"], (None, NUM_BODIES, 4))
-    if len(root) == 0:
-        raise MotionFileError(path, "the motion has no frames")
+    root = _check(path, "root_pos", data["root_pos"], (3,))
+    quat = _check(path, "local_quat", data["local_quat"], (NUM_BODIES, 4))
     if len(root) != len(quat):
         raise MotionFileError(path, f"{len(root)} root frames but {len(quat)} rotation frames")
     norms = np.linalg.norm(quat, axis=-1)
     if np.any(np.abs(norms - 1) > 1e-3):
         raise MotionFileError(path, "'local_quat' holds quaternions that are not unit length")
     name = str(data["name"]) if "name" in data else Path(path).stem
-    betas = np.asarray(data["betas"], float) if "betas" in data else None
+    betas = _betas(path, "betas", data["betas"]) if "betas" in data else None
     return RawMotion(name, _check_fps(path, data["fps"]), root, quat / norms[..., None], betas,
                      _as_str(data["gender"] if "gender" in data else None), str(path))
 
@@ -168,14 +177,15 @@ def _read_npz(path, skeleton: Skeleton) -> list[RawMotion]:
 def _read_phc_sequence(path, name, seq, skeleton: Skeleton) -> RawMotion:
     if not isinstance(seq, dict) or "pose_aa" not in seq:
         raise MotionFileError(path, f"sequence {name!r} has no 'pose_aa'")
-    pose = _check(path, f"{name}.pose_aa", np.asarray(seq["pose_aa"]).reshape(len(seq["pose_aa"]), -1), (None, 72))
+    pose = _check(path, f"{name}.pose_aa", seq["pose_aa"], (72,), (24, 3))
+    pose = pose.reshape(len(pose), 72)
     if "root_trans_offset" in seq:  # already the pelvis position
-        pelvis = _check(path, f"{name}.root_trans_offset", seq["root_trans_offset"], (None, 3))
+        pelvis = _check(path, f"{name}.root_trans_offset", seq["root_trans_offset"], (3,))
     elif "trans" in seq:
-        pelvis = _check(path, f"{name}.trans", seq["trans"], (None, 3)) + skeleton.pelvis_smpl
+        pelvis = _check(path, f"{name}.trans", seq["trans"], (3,)) + skeleton.pelvis_smpl
     else:
         raise MotionFileError(path, f"sequence {name!r} has neither 'root_trans_offset' nor 'trans'")
-    betas = np.asarray(seq["beta"], float).ravel() if "beta" in seq else None
+    betas = _betas(path, f"{name}.beta", seq["beta"]) if "beta" in seq else None
     return _from_smpl_pose(path, name, pose, pelvis, _check_fps(path, seq.get("fps", 30)), betas,
                            _as_str(seq.get("gender")))
 

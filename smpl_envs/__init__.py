@@ -11,21 +11,51 @@ if "MUJOCO_GL" not in _os.environ and not (_os.environ.get("DISPLAY") or _os.env
 __version__ = "0.1.0"
 
 
-# Task ids -> (single-world class, batched class) in smpl_envs.envs. Registering by string keeps
-# `import smpl_envs` light: MuJoCo and the tasks load on the first gym.make.
+# Task id -> (vector class "module:Class" in smpl_envs.envs, time limit in steps or None). Registering
+# by string keeps `import smpl_envs` light: MuJoCo and the tasks load on the first gym.make.
 ENV_IDS = {
-    "SMPL/Imitation-v0": ("ImitationEnv", "ImitationVecEnv"),
-    "SMPL/KeypointImitation-v0": ("KeypointImitationEnv", "KeypointImitationVecEnv"),
+    "SMPL/Imitation-v0": ("smpl_envs.envs.imitation:ImitationVecEnv", None),
+    "SMPL/KeypointImitation-v0": ("smpl_envs.envs.imitation:KeypointImitationVecEnv", None),
+    "SMPL/Speed-v0": ("smpl_envs.envs.speed:SpeedVecEnv", 300),
+    "SMPL/Reach-v0": ("smpl_envs.envs.reach:ReachVecEnv", 300),
+    "SMPL/Strike-v0": ("smpl_envs.envs.strike:StrikeVecEnv", 300),
 }
+
+
+class OneWorld:
+    """`gym.make`'s entry point of a task: the batch of one of its vector class (`SingleEnv`), so
+    a task is one class, written once, batched."""
+
+    def __init__(self, vector_entry_point: str):
+        self.vector_entry_point = vector_entry_point
+
+    @property
+    def vec_class(self):
+        from gymnasium.envs.registration import load_env_creator
+
+        return load_env_creator(self.vector_entry_point)
+
+    @property
+    def metadata(self) -> dict:  # gym.make reads the render modes from the entry point
+        from .envs.base import SingleEnv
+
+        return SingleEnv.metadata
+
+    def __call__(self, **kwargs):
+        from .envs.base import SingleEnv
+
+        return SingleEnv(self.vec_class, **kwargs)
+
+    def __repr__(self) -> str:
+        return f"OneWorld({self.vector_entry_point!r})"
 
 
 def _register() -> None:
     import gymnasium as gym
 
-    for env_id, (single, vector) in ENV_IDS.items():
+    for env_id, (vector, steps) in ENV_IDS.items():
         if env_id not in gym.registry:
-            gym.register(env_id, entry_point=f"smpl_envs.envs:{single}",
-                         vector_entry_point=f"smpl_envs.envs:{vector}")
+            gym.register(env_id, entry_point=OneWorld(vector), vector_entry_point=vector, max_episode_steps=steps)
 
 
 _register()

@@ -1,35 +1,45 @@
-"""Benchmark a motion-imitation policy on every clip of a motion library (PHC's protocol).
+"""Evaluate a policy the way its task is measured: every task carries its own protocol.
 
-    from smpl_envs.evaluation import evaluate
-    result = evaluate(policy, "SMPL/Imitation-v0", motions="path/to/amass_test")
-    print(result)                      # per-clip table, then the aggregate line
+    import smpl_envs
+    result = smpl_envs.evaluate(policy, "SMPL/Imitation-v0", motions="path/to/amass_test")
+    result = smpl_envs.evaluate(policy, "SMPL/Speed-v0", motions=["walk", "run"], episodes=64)
+    print(result)                      # per-clip or per-episode table, then the aggregate line
     result.save("runs/eval.json")
 
-Protocol (Perpetual Humanoid Control, Luo et al. 2023):
+A task's vector class names its protocol in the class attribute `evaluation`; `evaluate`, the
+`smpl-envs eval` command and the training runs' periodic evaluations ask it, so nothing outside
+the task module knows what a task's success is. Two protocols cover the tasks:
+
+`ClipProtocol` (imitation; PHC, Luo et al. 2023):
 
 * Every clip of the library is imitated exactly once, from its first frame (the humanoid starts
-  in the reference state of frame 0), until its last frame. Nothing is random: the env is reset
-  with seed 0 and no clip or start frame is sampled, so two runs give the same numbers.
+  in the reference state of frame 0), until its last frame. Nothing is random.
 * A clip fails at the first frame where the mean distance over all 24 bodies between the
-  simulated and the reference humanoid exceeds `threshold` (0.5 m). Imitation stops there; the
-  failing frame is the last one of the recorded trajectory. The env's own early termination is
-  switched off (it leaves out the feet and would end clips by a different rule). A simulation
-  that diverges also fails the clip at that frame.
+  simulated and the reference humanoid exceeds `threshold` (0.5 m). Imitation stops there. The
+  env's own early termination is switched off. A simulation that diverges also fails the clip.
 * Per clip, `smpl_envs.metrics.clip_metrics` turns the recorded simulated and reference body
-  positions (every frame from the initial one to the last one imitated) into success and the
-  errors in mm: E_g-mpjpe, E_mpjpe (root-relative), E_acc, E_vel.
-* The aggregate (`metrics.summarize`) is the success rate and each error averaged over the
-  successful clips, as PHC reports them, with the averages over all clips alongside (`all_*`).
+  positions into success and the errors in mm; `metrics.summarize` aggregates them as PHC does.
+* Clips run batched: each world takes the next clip from a queue whenever its current one ends,
+  so the result does not depend on the number of worlds.
 
-Clips run batched: each of the env's worlds takes the next clip from a queue whenever its
-current one ends, so the result does not depend on the number of worlds.
+`EpisodeProtocol` (goal-directed tasks: speed, reach, strike ...):
+
+* `episodes` episodes (default 32) run to their end (a fall, the task's own termination, or the
+  time limit) from seeded resets, the env's starts and targets as in training, deterministic
+  policy. Each world runs one episode after another; results depend on (seed, num_envs) only.
+* Every step, the task's `info` entries named by the protocol are logged per world; at the end of
+  an episode the task's `episode_metrics(log)` turns the log into that episode's row.
+* The summary is the mean of every row metric over episodes, plus `score`: the mean task reward
+  per step over the full time limit, steps after an early end counting zero, which ranks
+  checkpoints (a policy cannot score by falling early).
 """
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
@@ -37,22 +47,27 @@ from tqdm.auto import tqdm
 
 from . import metrics
 
-# evaluate() sets these when it makes the env itself; env_kwargs must not override them.
-_FORCED_KWARGS = ("num_envs", "motions", "termination_distance", "autoreset_mode")
+# Env kwargs that only make sense for the env an evaluation builds itself.
+_VEC_ONLY = ("num_envs", "autoreset_mode", "render_mode", "render_world")
 
 
 @dataclass
 class EvalResult:
-    """Per-clip rows (clip_metrics plus `name`, `motion_id`, in library order) and their summary."""
+    """Per-clip or per-episode rows and their summary; `kind` is "clips" or "episodes"."""
 
     rows: list[dict]
     summary: dict = field(default_factory=dict)
+    kind: str = "clips"
 
     def table(self) -> str:
-        return metrics.format_table(self.rows, self.summary)
+        if self.kind == "clips":
+            return metrics.format_table(self.rows, self.summary)
+        return format_episode_table(self.rows, self.summary)
 
     def to_json(self) -> str:
-        return metrics.to_json(self.rows, self.summary)
+        if self.kind == "clips":
+            return metrics.to_json(self.rows, self.summary)
+        return json.dumps({"episodes": self.rows, "summary": self.summary}, indent=2, default=_plain)
 
     def save(self, path) -> Path:
         """Write `to_json()` to `path` (parent directories created); returns the path."""
@@ -65,74 +80,219 @@ class EvalResult:
         return self.table()
 
 
-def evaluate(policy: Callable, env="SMPL/Imitation-v0", *, motions=None, num_envs: int = 8,
-             threshold: float = 0.5, progress: bool = True, env_kwargs: dict | None = None) -> EvalResult:
-    """Imitate every clip once with `policy` and measure it (protocol in the module docstring).
+def _plain(x):
+    if isinstance(x, (np.integer, np.bool_)):
+        return x.item()
+    if isinstance(x, np.floating):
+        return None if not np.isfinite(x) else float(x)
+    raise TypeError(type(x).__name__)
 
-    policy: callable from observations (N, D) float32 to actions (N, 69); a returned tuple
-        (e.g. stable-baselines' `predict`, which returns (actions, state)) counts by its first item.
-    env: a registered task id (an env of min(num_envs, clips) worlds is made with `motions`
-        (default "walk") and `env_kwargs`, and closed afterwards), or an existing smpl_envs vec
-        env made with autoreset_mode="Disabled", termination_distance=None and no
-        max_episode_steps; it is reset with seed 0 and evaluated on its own motion library.
+
+# ---------------------------------------------------------------------------------------- protocols
+class EvalProtocol:
+    """What a task's evaluation is. Subclasses set:
+
+    key / minimize: the summary metric that ranks checkpoints (best.pt), and its direction;
+    options: the protocol's own options with their defaults (`evaluate(..., **options)`);
+    train_only_kwargs: env kwargs of a training run that its evaluation does not inherit
+        (they shape training episodes; the protocol chooses its own).
     """
-    made = isinstance(env, str)
-    if made:
-        env = _make_env(env, motions, num_envs, env_kwargs, progress)
-    else:
-        if motions is not None or env_kwargs is not None:
-            raise ValueError("motions and env_kwargs are only for an env id; an existing env is "
-                             "evaluated on its own motion library")
-        _check_env(env)
-    try:
-        rows = _run(policy, env, threshold, progress)
-    finally:
-        if made:
-            env.close()
-    return EvalResult(rows, metrics.summarize(rows))
+
+    key: str = "score"
+    minimize: bool = False
+    options: dict[str, Any] = {}
+    train_only_kwargs: tuple[str, ...] = ()
+    forced_kwargs: tuple[str, ...] = ("num_envs", "autoreset_mode")
+
+    def check_options(self, options: dict) -> dict:
+        """The protocol's options with defaults filled in; ValueError names an unknown one."""
+        unknown = sorted(set(options) - set(self.options))
+        if unknown:
+            known = ", ".join(self.options) or "none"
+            raise ValueError(f"unknown evaluation option(s) {unknown} for {type(self).__name__}; it takes: {known}")
+        return {**self.options, **options}
+
+    def eval_kwargs(self, train_kwargs: dict) -> dict:
+        """Env kwargs of a training run that carry over to its evaluation (reward weights,
+        substeps, action mode ...)."""
+        drop = set(self.train_only_kwargs) | set(_VEC_ONLY) | {"motions"}
+        return {k: v for k, v in train_kwargs.items() if k not in drop}
+
+    def record_kwargs(self, train_kwargs: dict) -> dict:
+        """Env kwargs for a video of a training run's policy (one world, as in training)."""
+        return {k: v for k, v in train_kwargs.items() if k not in set(_VEC_ONLY) | {"motions"}}
+
+    def run(self, policy: Callable, env, options: dict, progress: bool) -> EvalResult:
+        raise NotImplementedError
+
+    def make_env(self, env_id: str, motions, num_envs: int, env_kwargs: dict, progress: bool, options: dict):
+        raise NotImplementedError
 
 
-def _make_env(env_id: str, motions, num_envs: int, env_kwargs: dict | None, progress: bool):
-    import gymnasium as gym
+class ClipProtocol(EvalProtocol):
+    """PHC's imitation protocol (module docstring). Option: threshold (m)."""
 
-    from .envs import load_motions  # imported here: pulls in MuJoCo, not needed for the results API
+    key = "success_rate"
+    options = {"threshold": 0.5}
+    train_only_kwargs = ("start", "max_episode_steps", "termination_distance")
 
-    env_kwargs = dict(env_kwargs or {})
-    clash = sorted(set(env_kwargs) & set(_FORCED_KWARGS))
-    if clash:
-        raise ValueError(f"env_kwargs must not set {clash}: evaluate() chooses them")
-    if int(num_envs) < 1:
-        raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-    # Load once here: the clip count sizes the env (no idle worlds), and the env reuses the library.
-    lib = load_motions("walk" if motions is None else motions, progress=progress)
-    env = gym.make_vec(env_id, num_envs=min(int(num_envs), lib.num_motions), motions=lib,
-                       termination_distance=None, autoreset_mode="Disabled", **env_kwargs)
-    try:
-        _check_env(env)
-    except ValueError:
-        env.close()
-        raise
-    return env
+    def check_options(self, options: dict) -> dict:
+        options = super().check_options(options)
+        t = options["threshold"]
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not t > 0:
+            raise ValueError(f"threshold must be a positive distance in metres, got {t!r}")
+        return options
+
+    def record_kwargs(self, train_kwargs: dict) -> dict:
+        # From a clip's first frame, with the training termination and episode length, so a
+        # fall restarts the clip as in training.
+        return {**super().record_kwargs(train_kwargs), "start": "beginning"}
+
+    def make_env(self, env_id, motions, num_envs, env_kwargs, progress, options):
+        import gymnasium as gym
+
+        from .envs import load_motions  # imported here: pulls in MuJoCo, not needed for the results API
+
+        clash = sorted(set(env_kwargs) & {"motions", "termination_distance", *self.forced_kwargs})
+        if clash:
+            raise ValueError(f"env_kwargs must not set {clash}: evaluate() chooses them")
+        # Load once here: the clip count sizes the env (no idle worlds), and the env reuses the library.
+        lib = load_motions("walk" if motions is None else motions, progress=progress)
+        return gym.make_vec(env_id, num_envs=min(num_envs, lib.num_motions), motions=lib,
+                            termination_distance=None, autoreset_mode="Disabled", **env_kwargs)
+
+    def check_env(self, env) -> None:
+        u = getattr(env, "unwrapped", env)
+        _check_disabled_autoreset(u)
+        if getattr(u, "termination_distance", None) is not None:
+            raise ValueError(f"env must be made with termination_distance=None (evaluate applies the "
+                             f"success threshold itself), got {u.termination_distance!r}")
+        if getattr(u, "max_episode_steps", None) is not None:
+            raise ValueError(f"env must be made with max_episode_steps=None (clips run to their last "
+                             f"frame), got {u.max_episode_steps!r}")
+
+    def run(self, policy, env, options, progress):
+        rows = _run_clips(policy, env, options["threshold"], progress)
+        return EvalResult(rows, metrics.summarize(rows), "clips")
 
 
-def _check_env(env) -> None:
-    """ValueError unless `env` is a suite vec env that never ends a clip early by itself."""
-    u = getattr(env, "unwrapped", env)
-    if not (hasattr(u, "motion_lib") and hasattr(u, "num_envs") and hasattr(u, "reference_action")):
-        raise ValueError(f"env must be a smpl_envs vec env (gym.make_vec of an SMPL/ task), got {type(env).__name__}")
+class EpisodeProtocol(EvalProtocol):
+    """Seeded episodes of a goal-directed task (module docstring). Options: episodes, seed.
+
+    step_keys: the `info` entries logged every step; episode_metrics(log) -> row, where `log`
+    maps each step key to its (T,) values over the episode and also holds `reward` (T,),
+    `terminated`, `truncated`, `diverged` (bools of the last step) and `length`.
+    """
+
+    train_only_kwargs = ("start",)
+
+    def __init__(self, step_keys: tuple[str, ...], episode_metrics: Callable[[dict], dict]):
+        self.step_keys = tuple(step_keys)
+        self.episode_metrics = episode_metrics
+        self.options = {"episodes": 32, "seed": 0}
+
+    def check_options(self, options: dict) -> dict:
+        options = super().check_options(options)
+        for name in ("episodes", "seed"):
+            v = options[name]
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (1 if name == "episodes" else 0):
+                raise ValueError(f"{name} must be an integer {'>= 1' if name == 'episodes' else '>= 0'}, got {v!r}")
+        return options
+
+    def make_env(self, env_id, motions, num_envs, env_kwargs, progress, options):
+        import gymnasium as gym
+
+        clash = sorted(set(env_kwargs) & {"motions", *self.forced_kwargs})
+        if clash:
+            raise ValueError(f"env_kwargs must not set {clash}: evaluate() chooses them")
+        kwargs = dict(env_kwargs) if motions is None else {**env_kwargs, "motions": motions}
+        return gym.make_vec(env_id, num_envs=min(num_envs, options["episodes"]), autoreset_mode="Disabled", **kwargs)
+
+    def check_env(self, env) -> None:
+        u = getattr(env, "unwrapped", env)
+        _check_disabled_autoreset(u)
+        if getattr(u, "max_episode_steps", None) is None:
+            raise ValueError("env must have a time limit (max_episode_steps) for an episode evaluation")
+
+    def run(self, policy, env, options, progress):
+        rows = _run_episodes(policy, env, self, options["episodes"], options["seed"], progress)
+        summary = {"episodes": len(rows)}
+        for key in rows[0]:
+            values = np.array([r[key] for r in rows], float)
+            if np.isfinite(values).any():
+                summary[key] = float(np.nanmean(values))
+        return EvalResult(rows, summary, "episodes")
+
+
+def _check_disabled_autoreset(u) -> None:
     mode = u.metadata.get("autoreset_mode")
     if mode is None or AutoresetMode(getattr(mode, "value", mode)) != AutoresetMode.DISABLED:
         raise ValueError(f"env must be made with autoreset_mode='Disabled' (evaluate resets worlds "
                          f"itself), got {getattr(mode, 'value', mode)!r}")
-    if getattr(u, "termination_distance", None) is not None:
-        raise ValueError(f"env must be made with termination_distance=None (evaluate applies the "
-                         f"success threshold itself), got {u.termination_distance!r}")
-    if getattr(u, "max_episode_steps", None) is not None:
-        raise ValueError(f"env must be made with max_episode_steps=None (clips run to their last "
-                         f"frame), got {u.max_episode_steps!r}")
 
 
-def _run(policy: Callable, env, threshold: float, progress: bool) -> list[dict]:
+def protocol_for(env) -> EvalProtocol:
+    """The evaluation protocol of a registered task id or of a suite env."""
+    if isinstance(env, str):
+        import gymnasium as gym
+
+        from gymnasium.envs.registration import load_env_creator
+
+        try:
+            spec = gym.spec(env)
+        except gym.error.Error as e:
+            raise ValueError(f"unknown env id {env!r}: {e}") from None
+        entry = spec.vector_entry_point
+        cls = load_env_creator(entry) if isinstance(entry, str) else entry
+    else:
+        u = getattr(env, "unwrapped", env)
+        cls = type(getattr(u, "vec", u))  # a single env evaluates through its vector class
+    protocol = getattr(cls, "evaluation", None)
+    if not isinstance(protocol, EvalProtocol):
+        raise ValueError(f"{env!r} is not an smpl_envs task with an evaluation protocol")
+    return protocol
+
+
+# ---------------------------------------------------------------------------------------- entry point
+def evaluate(policy: Callable, env="SMPL/Imitation-v0", *, motions=None, num_envs: int = 8,
+             progress: bool = True, env_kwargs: dict | None = None, **options) -> EvalResult:
+    """Measure `policy` on a task with the task's own protocol (module docstring).
+
+    policy: callable from observations (N, D) float32 to actions (N, 69); a returned tuple
+        (e.g. stable-baselines' `predict`, which returns (actions, state)) counts by its first item.
+    env: a registered task id (an env of at most `num_envs` worlds is made with `motions` and
+        `env_kwargs`, and closed afterwards), or an existing suite vec env made with
+        autoreset_mode="Disabled" (imitation also: termination_distance=None, no
+        max_episode_steps); it is reset with the protocol's seed.
+    options: the protocol's own (imitation: threshold=0.5; episode tasks: episodes=32, seed=0).
+    """
+    protocol = protocol_for(env)
+    options = protocol.check_options(options)
+    made = isinstance(env, str)
+    if made:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        env = protocol.make_env(env, motions, int(num_envs), dict(env_kwargs or {}), progress, options)
+    elif motions is not None or env_kwargs is not None:
+        raise ValueError("motions and env_kwargs are only for an env id; an existing env is "
+                         "evaluated as it was made")
+    try:
+        protocol.check_env(env)
+        return protocol.run(policy, env, options, progress)
+    finally:
+        if made:
+            env.close()
+
+
+def _act(policy, obs):
+    actions = policy(obs)
+    if isinstance(actions, tuple):
+        actions = actions[0]
+    return np.asarray(actions)
+
+
+# ---------------------------------------------------------------------------------------- clips
+def _run_clips(policy: Callable, env, threshold: float, progress: bool) -> list[dict]:
     u = getattr(env, "unwrapped", env)
     lib = u.motion_lib
     n, m = u.num_envs, lib.num_motions
@@ -158,9 +318,7 @@ def _run(policy: Callable, env, threshold: float, progress: bool) -> list[dict]:
             stop |= terminated[worlds] | truncated[worlds]
         return worlds[stop]
 
-    # Every world starts at once (idle ones on any clip: their steps are ignored). A fixed seed
-    # only matters if something in the env draws randomness; with explicit clips and
-    # start="beginning" nothing does.
+    # Every world starts at once (idle ones on any clip: their steps are ignored).
     first = min(n, m)
     obs, info = env.reset(seed=0, options={"motion_ids": np.arange(n) % m, "start": "beginning"})
     obs = np.array(obs, copy=True)
@@ -174,7 +332,7 @@ def _run(policy: Callable, env, threshold: float, progress: bool) -> list[dict]:
             # hence the loop.
             while len(done):
                 for w in done:
-                    rows[clip[w]] = _finish(lib, clip[w], sim_traj[w], ref_traj[w], broke[w], threshold)
+                    rows[clip[w]] = _finish_clip(lib, clip[w], sim_traj[w], ref_traj[w], broke[w], threshold)
                     sim_traj[w], ref_traj[w], clip[w], broke[w] = [], [], -1, False
                     bar.update(1)
                 take = done[:m - next_clip]
@@ -191,10 +349,7 @@ def _run(policy: Callable, env, threshold: float, progress: bool) -> list[dict]:
             active = np.flatnonzero(clip >= 0)
             if not len(active):
                 break
-            actions = policy(obs)
-            if isinstance(actions, tuple):
-                actions = actions[0]
-            obs, _, terminated, truncated, info = env.step(np.asarray(actions))
+            obs, _, terminated, truncated, info = env.step(_act(policy, obs))
             obs = np.array(obs, copy=True)
             done = record(active, info, np.asarray(terminated, bool), np.asarray(truncated, bool))
     finally:
@@ -202,7 +357,7 @@ def _run(policy: Callable, env, threshold: float, progress: bool) -> list[dict]:
     return rows
 
 
-def _finish(lib, motion_id: int, sim: list, ref: list, broke: bool, threshold: float) -> dict:
+def _finish_clip(lib, motion_id: int, sim: list, ref: list, broke: bool, threshold: float) -> dict:
     """clip_metrics of one finished clip, plus its name and id."""
     sim, ref = np.stack(sim), np.stack(ref)
     # A diverged world's last frame may be non-finite; measure the frames before it and still
@@ -214,4 +369,74 @@ def _finish(lib, motion_id: int, sim: list, ref: list, broke: bool, threshold: f
     return {"name": lib.names[motion_id], "motion_id": int(motion_id), **row}
 
 
-__all__ = ["EvalResult", "evaluate"]
+# ---------------------------------------------------------------------------------------- episodes
+def _run_episodes(policy: Callable, env, protocol: EpisodeProtocol, episodes: int, seed: int,
+                  progress: bool) -> list[dict]:
+    u = getattr(env, "unwrapped", env)
+    n, limit = u.num_envs, u.max_episode_steps
+    logs: list[dict[str, list]] = [_new_log(protocol) for _ in range(n)]
+    active = np.zeros(n, bool)
+    rows: list[dict] = []
+    started = min(n, episodes)
+    obs, _ = env.reset(seed=seed)
+    obs = np.array(obs, copy=True)
+    active[:started] = True
+    bar = tqdm(total=episodes, desc="evaluate", unit="episode", disable=not progress)
+    try:
+        while active.any():
+            obs, reward, terminated, truncated, info = env.step(_act(policy, obs))
+            obs = np.array(obs, copy=True)
+            terminated, truncated = np.asarray(terminated, bool), np.asarray(truncated, bool)
+            for w in np.flatnonzero(active):
+                log = logs[w]
+                log["reward"].append(float(reward[w]))
+                for key in protocol.step_keys:
+                    log[key].append(np.asarray(info[key])[w])
+            done = active & (terminated | truncated)
+            for w in np.flatnonzero(done):
+                rows.append(_finish_episode(protocol, logs[w], terminated[w], truncated[w],
+                                            bool(np.asarray(info["diverged"])[w]), limit))
+                logs[w] = _new_log(protocol)
+                bar.update(1)
+            more = np.flatnonzero(done)[:max(episodes - started, 0)]
+            active[done] = False
+            if len(more):
+                started += len(more)
+                mask = np.zeros(n, bool)
+                mask[more] = True
+                new_obs, _ = env.reset(options={"reset_mask": mask})
+                obs[more] = np.asarray(new_obs)[more]
+                active[more] = True
+    finally:
+        bar.close()
+    return rows
+
+
+def _new_log(protocol: EpisodeProtocol) -> dict[str, list]:
+    return {"reward": [], **{k: [] for k in protocol.step_keys}}
+
+
+def _finish_episode(protocol: EpisodeProtocol, log: dict, terminated: bool, truncated: bool,
+                    diverged: bool, limit: int) -> dict:
+    arrays = {k: np.asarray(v) for k, v in log.items()}
+    length = len(arrays["reward"])
+    arrays.update(terminated=bool(terminated), truncated=bool(truncated), diverged=diverged, length=length)
+    row = {"length": length, "fell": bool(terminated and not diverged), "diverged": diverged,
+           "score": float(arrays["reward"].sum() / limit)}
+    row.update(protocol.episode_metrics(arrays))
+    return row
+
+
+def format_episode_table(rows: list[dict], summary: dict) -> str:
+    """The summary of an episode evaluation as aligned `metric  value` lines."""
+    lines = [f"{len(rows)} episodes"]
+    width = max((len(k) for k in summary), default=0)
+    for key, value in summary.items():
+        if key == "episodes":
+            continue
+        text = f"{value:.4f}" if isinstance(value, float) else str(value)
+        lines.append(f"  {key:<{width}}  {text}")
+    return "\n".join(lines)
+
+
+__all__ = ["EvalResult", "EvalProtocol", "ClipProtocol", "EpisodeProtocol", "evaluate", "protocol_for"]

@@ -17,22 +17,27 @@ MARKER_RADIUS = 0.03
 
 
 class FrameRenderer:
-    """RGB frames of a humanoid model from its tracking camera, optionally with red markers at
-    reference body positions."""
+    """RGB frames of a humanoid model from its tracking camera, optionally with marker spheres
+    (reference bodies, targets) drawn into the scene."""
 
     def __init__(self, model: mujoco.MjModel, width: int = 640, height: int = 480, camera: str = "track"):
         self.renderer = mujoco.Renderer(model, height, width)
         self.camera = camera
 
-    def render(self, data: mujoco.MjData, markers: np.ndarray | None = None) -> np.ndarray:
+    def render(self, data: mujoco.MjData, markers=None) -> np.ndarray:
+        """markers: an (K, 3) array of positions (red spheres of MARKER_RADIUS), or a list of
+        groups (positions (K, 3), rgba, radius)."""
         self.renderer.update_scene(data, camera=self.camera)
-        if markers is not None:
-            scene = self.renderer.scene
-            for p in np.asarray(markers, float).reshape(-1, 3):
+        if markers is not None and not isinstance(markers, list):
+            markers = [(markers, MARKER_RGBA, MARKER_RADIUS)]
+        scene = self.renderer.scene
+        for positions, rgba, radius in markers or []:
+            rgba = np.asarray(rgba, np.float32)
+            for p in np.asarray(positions, float).reshape(-1, 3):
                 if scene.ngeom >= scene.maxgeom:
                     break
                 mujoco.mjv_initGeom(scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE,
-                                    np.full(3, MARKER_RADIUS), p, np.eye(3).ravel(), MARKER_RGBA)
+                                    np.full(3, radius), p, np.eye(3).ravel(), rgba)
                 scene.ngeom += 1
         return self.renderer.render().copy()
 
@@ -149,7 +154,7 @@ def _resolve_policy(env, policy):
         space = env.action_space
         return lambda obs: np.zeros(space.shape, space.dtype)
     if policy == "reference":
-        if not hasattr(env.unwrapped, "reference_action"):
+        if not hasattr(getattr(env.unwrapped, "vec", env.unwrapped), "reference_action"):
             raise ValueError(f"policy='reference' needs an smpl_envs env; {type(env.unwrapped).__name__} has no reference_action()")
         return lambda obs: env.unwrapped.reference_action()
     raise ValueError(f"policy must be a callable obs -> action, 'zero' or 'reference', got {policy!r}")

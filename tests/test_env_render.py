@@ -50,8 +50,8 @@ def test_reset_frame_shows_the_humanoid():
         env.close()
 
 
-def test_reference_markers_follow_show_reference():
-    envs = [make(render_size=(320, 240), show_reference=s, start="beginning") for s in (True, False)]
+def test_reference_markers_follow_show_markers():
+    envs = [make(render_size=(320, 240), show_markers=s, start="beginning") for s in (True, False)]
     try:
         frames = []
         for env in envs:

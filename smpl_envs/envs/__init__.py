@@ -1,9 +1,8 @@
 """Registered tasks. `gym.make(id)` gives one world; `gym.make_vec(id, num_envs=N)` the native
-batched env over N worlds (no subprocesses)."""
+batched env over N worlds (no subprocesses). `base` holds the task-agnostic core and its task
+interface; `reference` the reference-tracking part shared by the imitation-style tasks."""
 
 from .base import HumanoidVecEnv, SingleEnv, load_motions
-from .imitation import (ImitationEnv, ImitationVecEnv, KeypointImitationEnv,
-                        KeypointImitationVecEnv)
+from .imitation import ImitationVecEnv, KeypointImitationVecEnv
 
-__all__ = ["HumanoidVecEnv", "SingleEnv", "ImitationEnv", "ImitationVecEnv",
-           "KeypointImitationEnv", "KeypointImitationVecEnv", "load_motions"]
+__all__ = ["HumanoidVecEnv", "SingleEnv", "ImitationVecEnv", "KeypointImitationVecEnv", "load_motions"]

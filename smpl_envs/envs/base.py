@@ -1,27 +1,48 @@
-"""The batched humanoid environment every task builds on, and the one-world `gym.Env` view of it.
+"""The batched environment core every task builds on, and the one-world `gym.Env` view of it.
 
-`HumanoidVecEnv` owns the physics (`smpl_envs.sim.CPUSim`), the reference motions (`MotionLib`)
-and the episode bookkeeping (which clip and frame each world follows, autoreset). A task subclass
-supplies two batched functions of the state: `_observe` and `_evaluate` (reward, termination).
+`HumanoidVecEnv` knows no task. It owns the physics (`smpl_envs.sim.CPUSim` over a model the task
+may extend), episodes and time limits, the three autoreset modes, seeding, divergence isolation,
+start poses drawn from the motion library, and rendering. A task is a subclass that fills in the
+hooks below; its per-world state lives in arrays of shape (N, ...) on the env (MuJoCo
+Playground's style: state carried explicitly, resampled inside the step).
+
+The task interface (all batched over worlds; `ids` are world indices):
+
+| hook | called | returns / does |
+|---|---|---|
+| `task_layout` (class attribute) | at construction | {group: layout} of the observation after the self observation |
+| `_configure(spec)` | before compiling | add bodies, geoms, sensors or terrain to the `MjSpec` |
+| `_reset_task(ids, options)` | on reset of `ids` | full-model (qpos, qvel) of their start states; resets their task state |
+| `_ctrl(actions)` | every step | PD targets (N, 69) from actions in [-1, 1] (default: `action_scale * a`) |
+| `_advance(active)` | after physics | task clocks and schedules (resample a target every k steps) |
+| `_evaluate(body, heading)` | after `_advance` | (reward, {term: (N,)}, terminated, truncated) |
+| `_observe(body, heading)` | after `_evaluate` | observation (N, 358 + task columns), self observation first |
+| `_task_info(body)` | with the observation | extra `info` entries {name: (N, ...)} |
+| `_markers(world)` | on render | [(positions (K, 3), rgba, radius)] drawn into the frame |
+| `evaluation` (class attribute) | `smpl_envs.evaluate`, `smpl-envs eval` | the task's evaluation protocol (`smpl_envs.evaluation`) |
+
+`body` is the humanoid's `BodyState` in the world frame and `heading` its (N, 3, 3) heading
+rotation, computed once per step and shared by the hooks.
 
 Time: the policy acts at the motion library's 30 Hz; each action is held for `substeps` physics
-steps (4 x 1/120 s). Episodes start on an exact reference frame (reference state initialisation)
-and advance one frame per step, so the reference never needs interpolating.
+steps (4 x 1/120 s). Every episode starts from a pose of the motion library (a random frame, or a
+clip's first frame with `start="beginning"`), or the rest pose when the task runs without clips.
 """
 
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ..features import SELF_OBS_LAYOUT, BodyState, amp_features, heading_rotation, layout_size
-from ..humanoid.builder import build_humanoid
-from ..humanoid.skeleton import ACTION_SCALE
+from ..features import SELF_OBS_LAYOUT, BodyState, amp_features, heading_rotation, layout_size, layout_slices
+from ..humanoid.builder import build_spec, humanoid_addresses
+from ..humanoid.skeleton import ACTION_SCALE, BODY_NAMES
 from ..motion.library import MotionLib
 from ..sim import CPUSim
 
@@ -29,15 +50,24 @@ CONTROL_FPS = 30
 # "human" opens MuJoCo's viewer, so it is only offered where a display exists.
 RENDER_MODES = ["rgb_array"] + (["human"] if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") else [])
 PROPRIO_DIM = layout_size(SELF_OBS_LAYOUT)  # every task's observation starts with the self observation
+STARTS = ("random", "beginning")
+FEET = np.array([i for i, n in enumerate(BODY_NAMES) if n.endswith(("Ankle", "Toe"))])
 
 
-def load_motions(motions: str | os.PathLike | list | MotionLib, progress: bool = False) -> MotionLib:
+def load_motions(motions: str | os.PathLike | list | MotionLib, progress: bool = False,
+                 cache: bool = True) -> MotionLib:
     """A MotionLib from what a user passes as `motions=`: a shipped clip name, a motion file, a
     directory tree, a saved (cached) library, a list of those, or a MotionLib."""
-    lib = motions if isinstance(motions, MotionLib) else MotionLib.load(motions, progress=progress)
+    if isinstance(motions, MotionLib):
+        lib = motions
+    else:
+        try:
+            lib = MotionLib.load(motions, progress=progress, cache=cache)
+        except TypeError:  # a MotionLib.load without the cache switch
+            lib = MotionLib.load(motions, progress=progress)
     short = [lib.names[i] for i in np.flatnonzero(lib.lengths < 2)]
     if short:
-        raise ValueError(f"clips need at least 2 frames to be imitated; too short: {short[:5]}"
+        raise ValueError(f"motions: clips need at least 2 frames; too short: {short[:5]}"
                          + (f" and {len(short) - 5} more" if len(short) > 5 else ""))
     return lib
 
@@ -49,94 +79,185 @@ def _autoreset_mode(mode: str | AutoresetMode) -> AutoresetMode:
         raise ValueError(f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}, got {mode!r}") from None
 
 
-class HumanoidVecEnv(VectorEnv):
-    """N simulated SMPL humanoids following reference motions, stepped together.
+def _positive_int(name: str, value, allow_none: bool = False):
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer{' or None' if allow_none else ''}, got {value!r}")
+    return int(value)
 
-    Subclasses set `single_observation_space` size via `obs_dim` and implement `_observe`,
-    `_evaluate` (reward, its terms, termination). See the task modules for their layouts.
+
+def check_range(name: str, value, low: float = -np.inf, high: float = np.inf) -> tuple[float, float]:
+    """A (min, max) kwarg as floats, or a ValueError naming it."""
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a (min, max) pair of numbers, got {value!r}") from None
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo > hi:
+        raise ValueError(f"{name} must be a (min, max) pair with min <= max, got {value!r}")
+    if lo < low or hi > high:
+        raise ValueError(f"{name} must lie within [{low}, {high}], got {value!r}")
+    return lo, hi
+
+
+def fallen(body: BodyState, height: float = 0.15, head_height: float = 0.3):
+    """(N,) a fall (REFERENCE section 5): a body other than the feet below `height` m, or the head
+    below `head_height` m."""
+    z = body.pos[..., 2]
+    low = z < height
+    low[:, FEET] = False
+    return low.any(axis=-1) | (z[:, BODY_NAMES.index("Head")] < head_height)
+
+
+class HumanoidVecEnv(VectorEnv):
+    """N simulated SMPL humanoids stepped together; a task subclass supplies what they do.
+
+    Core kwargs (every task): motions (clips for start poses, references or style; None: the rest
+    pose), start ("random" frame or "beginning" of a clip), cache (the MotionLib's disk cache),
+    max_episode_steps, autoreset_mode, substeps, num_threads, render_mode, render_size,
+    render_world, show_markers.
     """
 
     metadata = {"render_modes": RENDER_MODES, "render_fps": CONTROL_FPS,
                 "autoreset_mode": AutoresetMode.NEXT_STEP}
-    obs_dim: int = 0
+    task_layout: ClassVar[dict[str, tuple]] = {}
+    evaluation: ClassVar[Any] = None
+    reset_options: ClassVar[tuple[str, ...]] = ("motion_ids", "start")
 
     def __init__(
         self,
         num_envs: int = 1,
         *,
-        motions: str | os.PathLike | list | MotionLib = "walk",
+        motions: str | os.PathLike | list | MotionLib | None = None,
         start: str = "random",
+        cache: bool = True,
         max_episode_steps: int | None = None,
         autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
         substeps: int = 4,
         num_threads: int | None = None,
         render_mode: str | None = None,
         render_size: tuple[int, int] = (640, 480),
-        show_reference: bool = True,
         render_world: int = 0,
+        show_markers: bool = True,
     ):
-        if start not in ("random", "beginning"):
-            raise ValueError(f"start must be 'random' or 'beginning', got {start!r}")
+        self.num_envs = _positive_int("num_envs", num_envs)
+        if start not in STARTS:
+            raise ValueError(f"start must be one of {STARTS}, got {start!r}")
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        self.num_envs = int(num_envs)
-        self.motion_lib = load_motions(motions)
+        if not 0 <= int(render_world) < self.num_envs:
+            raise ValueError(f"render_world must be in [0, {self.num_envs}), got {render_world!r}")
+        self.motion_lib = None if motions is None else load_motions(motions, cache=cache)
         self.start = start
-        self.max_episode_steps = max_episode_steps
+        self.max_episode_steps = _positive_int("max_episode_steps", max_episode_steps, allow_none=True)
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
         self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
-        self.model = build_humanoid()
-        self.sim = CPUSim(self.model, self.num_envs, substeps, num_threads)
+
+        spec = build_spec()
+        self._configure(spec)
+        self.model = spec.compile()
+        self.humanoid = humanoid_addresses(self.model)
+        self.sim = CPUSim(self.model, self.num_envs, _positive_int("substeps", substeps), num_threads, self.humanoid)
         self.action_scale = np.asarray(ACTION_SCALE, dtype=np.float64)
 
-        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (self.model.nu,), np.float32)
+        self.obs_dim = PROPRIO_DIM + sum(layout_size(layout) for layout in self.task_layout.values())
+        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (len(ACTION_SCALE),), np.float32)
         self.single_observation_space = gym.spaces.Box(-np.inf, np.inf, (self.obs_dim,), np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
 
         self.render_mode = render_mode
         self.render_size = tuple(render_size)
-        self.show_reference = show_reference
         self.render_world = int(render_world)
+        self.show_markers = bool(show_markers)
         self._renderer = self._viewer = None
 
         n = self.num_envs
-        self.motion_id = np.zeros(n, np.int64)
-        self.frame = np.zeros(n, np.int64)       # global library frame the simulated state matches
-        self.end_frame = np.zeros(n, np.int64)   # last frame of each world's clip
-        self.elapsed = np.zeros(n, np.int64)     # steps since the world's last reset
+        self.elapsed = np.zeros(n, np.int64)       # steps since each world's last reset
+        self.start_motion = np.zeros(n, np.int64)  # clip and global library frame of the start pose
+        self.start_frame = np.zeros(n, np.int64)
         self._needs_reset = np.zeros(n, bool)
-        self._ref_cache = None
 
-    # ------------------------------------------------------------------ task interface
-    def _observe(self, sim: BodyState, ref_next: BodyState, heading: np.ndarray) -> np.ndarray:
+    # ------------------------------------------------------------------ task interface (defaults)
+    def _configure(self, spec: mujoco.MjSpec) -> None:
+        """Add the task's objects to the model before it is compiled (default: nothing)."""
+
+    def _reset_task(self, ids: np.ndarray, options: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Start states (qpos, qvel of the whole model) of worlds `ids`; reset their task state."""
+        return self.start_pose(ids, options.get("motion_ids"), options.get("start", self.start))
+
+    def _ctrl(self, actions: np.ndarray) -> np.ndarray:
+        """PD targets (N, 69) of actions in [-1, 1]."""
+        return actions * self.action_scale
+
+    def _advance(self, active: np.ndarray | None) -> None:
+        """Advance task clocks and schedules of the worlds that stepped (`active`; None: all)."""
+
+    def _evaluate(self, body: BodyState, heading) -> tuple[np.ndarray, dict, np.ndarray, np.ndarray]:
         raise NotImplementedError
 
-    def _evaluate(self, sim: BodyState, ref: BodyState) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
-        """(reward (N,), reward terms {name: (N,)}, terminated (N,) bool) of the current state."""
+    def _observe(self, body: BodyState, heading) -> np.ndarray:
         raise NotImplementedError
+
+    def _task_info(self, body: BodyState) -> dict[str, np.ndarray]:
+        return {}
+
+    def _markers(self, world: int) -> list[tuple[np.ndarray, tuple, float]]:
+        return []
+
+    # ------------------------------------------------------------------ helpers for tasks
+    def start_pose(self, ids: np.ndarray, motion_ids=None, start: str = "random") -> tuple[np.ndarray, np.ndarray]:
+        """Full-model (qpos, qvel) for worlds `ids`: a frame of the motion library (clips drawn by
+        its weights unless `motion_ids`; a random frame that leaves one step to go, or the first),
+        or the model's rest pose when there are no clips. Records `start_motion` / `start_frame`."""
+        n = len(ids)
+        qpos = np.tile(self.model.qpos0, (n, 1))
+        qvel = np.zeros((n, self.model.nv))
+        lib = self.motion_lib
+        if lib is None:
+            if motion_ids is not None:
+                raise ValueError("reset option motion_ids needs an env made with motions=")
+            return qpos, qvel
+        if start not in STARTS:
+            raise ValueError(f"start must be one of {STARTS}, got {start!r}")
+        rng = self.np_random
+        if motion_ids is None:
+            motion_ids = lib.sample_motions(n, rng)
+        motion_ids = np.asarray(motion_ids, np.int64).reshape(-1)
+        if len(motion_ids) != n or motion_ids.min() < 0 or motion_ids.max() >= lib.num_motions:
+            raise ValueError(f"motion_ids must be {n} indices in [0, {lib.num_motions})")
+        local = ((rng.random(n) * (lib.lengths[motion_ids] - 1)).astype(np.int64) if start == "random"
+                 else np.zeros(n, np.int64))
+        self.start_motion[ids] = motion_ids
+        self.start_frame[ids] = lib.starts[motion_ids] + local
+        hq, hv = lib.qpos_qvel(self.start_frame[ids])
+        qpos[:, self.humanoid.qpos], qvel[:, self.humanoid.qvel] = hq, hv
+        return qpos, qvel
+
+    @property
+    def observation_structure(self) -> dict[str, slice]:
+        """{"group/name": slice into the flat observation}; the task module has the table."""
+        return layout_slices({"self": SELF_OBS_LAYOUT, **self.task_layout})
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        """Reset every world, or with `options={"reset_mask": mask}` only the masked ones.
-
-        Other options: `motion_ids` (one clip per reset world, instead of sampling by the
-        library's weights) and `start` ("random" or "beginning", overriding the env's default).
-        """
+        """Reset every world, or with `options={"reset_mask": mask}` (a boolean mask of num_envs
+        entries) only the masked ones. Other options: `motion_ids` (one clip per reset world
+        instead of sampling by the library's weights), `start` ("random" or "beginning"), and
+        those of the task (`reset_options`)."""
         if seed is not None:
             self._np_random, self._np_random_seed = gym.utils.seeding.np_random(seed)
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
-        motion_ids = options.pop("motion_ids", None)
-        start = options.pop("start", self.start)
-        if options:
-            raise ValueError(f"unknown reset options {sorted(options)}; known: reset_mask, motion_ids, start")
-        ids = np.arange(self.num_envs) if mask is None else np.flatnonzero(np.asarray(mask, bool))
-        self._reset_worlds(ids, motion_ids, start)
-        state = self.sim.bodies
-        heading = heading_rotation(state.rot[:, 0])
-        obs = self._observe(state, self._ref_next(), heading)
-        info = self._info(state, self._reference(self.frame), obs[:, :PROPRIO_DIM], None, np.zeros(self.num_envs, bool))
+        unknown = sorted(set(options) - set(self.reset_options))
+        if unknown:
+            raise ValueError(f"unknown reset options {unknown}; known: reset_mask, {', '.join(self.reset_options)}")
+        ids = np.arange(self.num_envs) if mask is None else np.flatnonzero(self._check_mask(mask))
+        self._reset_worlds(ids, options)
+        body = self.sim.bodies
+        heading = heading_rotation(body.rot[:, 0])
+        obs = self._observe(body, heading)
+        info = self._info(body, obs, None, np.zeros(self.num_envs, bool))
         obs = self._finish_obs(obs)
         if mask is not None:
             # Worlds left running keep their observation; only the reset ones change.
@@ -146,35 +267,36 @@ class HumanoidVecEnv(VectorEnv):
 
     def step(self, actions):
         actions = np.asarray(actions, dtype=np.float64)
-        if actions.shape != (self.num_envs, self.model.nu):
-            raise ValueError(f"actions must have shape {(self.num_envs, self.model.nu)}, got {actions.shape}")
-        if not np.isfinite(actions).all():
-            bad = np.flatnonzero(~np.isfinite(actions).all(-1))
-            raise ValueError(f"actions contain NaN or inf in worlds {bad.tolist()[:10]}")
+        if actions.shape != (self.num_envs, len(self.action_scale)):
+            raise ValueError(f"actions must have shape {(self.num_envs, len(self.action_scale))}, got {actions.shape}")
+        # A world handed NaN or inf ends its episode as diverged; the others carry on.
+        broken = None
+        if not np.isfinite(actions.sum()):
+            broken = ~np.isfinite(actions).all(-1)
+            actions = np.where(broken[:, None], 0.0, actions)
 
         # NEXT_STEP autoreset: worlds that ended last step restart now and ignore their action.
         # The common case (nobody restarting) skips every mask below.
         running = None
         if self._needs_reset.any():
             running = ~self._needs_reset
-            self._reset_worlds(np.flatnonzero(self._needs_reset), None, self.start)
-        diverged = self.sim.step(actions.clip(-1.0, 1.0) * self.action_scale, active=running)
+            self._reset_worlds(np.flatnonzero(self._needs_reset), {})
+        diverged = self.sim.step(self._ctrl(actions.clip(-1.0, 1.0)), active=running)
+        if broken is not None:
+            diverged |= broken
         if running is None:
-            np.minimum(self.frame + 1, self.end_frame, out=self.frame)
             self.elapsed += 1
         else:
             diverged &= running
-            self.frame[running] = np.minimum(self.frame[running] + 1, self.end_frame[running])
             self.elapsed[running] += 1
+        self._advance(running)
 
-        state = self.sim.bodies
-        heading = heading_rotation(state.rot[:, 0])
-        ref = self._reference(self.frame)
-        reward, terms, terminated = self._evaluate(state, ref)
+        body = self.sim.bodies
+        heading = heading_rotation(body.rot[:, 0])
+        reward, terms, terminated, truncated = self._evaluate(body, heading)
         terminated = terminated | diverged
-        truncated = self.frame >= self.end_frame
         if self.max_episode_steps is not None:
-            truncated |= self.elapsed >= self.max_episode_steps
+            truncated = truncated | (self.elapsed >= self.max_episode_steps)
         if running is not None or diverged.any():
             valid = ~diverged if running is None else running & ~diverged
             reward = np.where(valid, reward, 0.0)
@@ -183,8 +305,8 @@ class HumanoidVecEnv(VectorEnv):
                 terminated &= running
                 truncated &= running
         truncated &= ~terminated
-        obs = self._observe(state, self._ref_next(), heading)
-        info = self._info(state, ref, obs[:, :PROPRIO_DIM], terms, diverged)
+        obs = self._observe(body, heading)
+        info = self._info(body, obs, terms, diverged)
         obs = self._finish_obs(obs)
 
         done = terminated | truncated
@@ -194,61 +316,31 @@ class HumanoidVecEnv(VectorEnv):
             ids = np.flatnonzero(done)
             info["final_obs"], info["_final_obs"] = obs.copy(), done
             info["final_info"], info["_final_info"] = {k: v.copy() for k, v in info.items()}, done
-            self._reset_worlds(ids, None, self.start)
-            state = self.sim.bodies
-            heading = heading_rotation(state.rot[:, 0])
-            fresh_obs = self._observe(state, self._ref_next(), heading)
-            fresh = self._info(state, self._reference(self.frame), fresh_obs[:, :PROPRIO_DIM], None,
-                               np.zeros(self.num_envs, bool))
+            self._reset_worlds(ids, {})
+            body = self.sim.bodies
+            fresh_obs = self._observe(body, heading_rotation(body.rot[:, 0]))
+            fresh = self._info(body, fresh_obs, None, diverged)
             obs[ids] = self._finish_obs(fresh_obs[ids])
             for k, v in fresh.items():
-                info[k][ids] = v[ids]
+                if k != "diverged":  # the flag reports this step's event in every mode
+                    info[k][ids] = v[ids]
         return obs, np.asarray(reward, np.float64), terminated, truncated, info
 
     # ------------------------------------------------------------------ internals
-    def _reset_worlds(self, ids: np.ndarray, motion_ids, start: str) -> None:
+    def _check_mask(self, mask) -> np.ndarray:
+        mask = np.asarray(mask)
+        if mask.dtype != bool or mask.shape != (self.num_envs,):
+            raise ValueError(f"reset_mask must be a boolean mask of {self.num_envs} entries (one per world), "
+                             f"got {mask.dtype} of shape {mask.shape}; for indices use np.isin(range(num_envs), ids)")
+        return mask
+
+    def _reset_worlds(self, ids: np.ndarray, options: dict) -> None:
         if len(ids) == 0:
             return
-        lib, rng = self.motion_lib, self.np_random
-        if motion_ids is None:
-            motion_ids = lib.sample_motions(len(ids), rng)
-        motion_ids = np.asarray(motion_ids, np.int64).reshape(-1)
-        if len(motion_ids) != len(ids) or motion_ids.min() < 0 or motion_ids.max() >= lib.num_motions:
-            raise ValueError(f"motion_ids must be {len(ids)} indices in [0, {lib.num_motions})")
-        if start == "random":  # any frame that leaves at least one step to imitate
-            local = (rng.random(len(ids)) * (lib.lengths[motion_ids] - 1)).astype(np.int64)
-        elif start == "beginning":
-            local = np.zeros(len(ids), np.int64)
-        else:
-            raise ValueError(f"start must be 'random' or 'beginning', got {start!r}")
-        self.motion_id[ids] = motion_ids
-        self.frame[ids] = lib.starts[motion_ids] + local
-        self.end_frame[ids] = lib.starts[motion_ids] + lib.lengths[motion_ids] - 1
         self.elapsed[ids] = 0
         self._needs_reset[ids] = False
-        qpos, qvel = lib.qpos_qvel(self.frame[ids])
+        qpos, qvel = self._reset_task(ids, options)
         self.sim.set_state(ids, qpos, qvel)
-
-    def reference_action(self) -> np.ndarray:
-        """(N, 69) actions whose PD targets are the next reference frame's joint angles: the
-        policy-free baseline of "track the reference with the PD controllers alone"."""
-        target = self.motion_lib.dof_pos[self._next_frame()] / self.action_scale
-        return np.clip(target, -1.0, 1.0).astype(np.float32)
-
-    def _next_frame(self) -> np.ndarray:
-        return np.minimum(self.frame + 1, self.end_frame)
-
-    def _ref_next(self) -> BodyState:
-        return self._reference(self._next_frame())
-
-    def _reference(self, frames: np.ndarray) -> BodyState:
-        # The frames observed as "next" in one step are the frames rewarded in the following one.
-        cached = self._ref_cache
-        if cached is not None and np.array_equal(cached[0], frames):
-            return cached[1]
-        ref = self.motion_lib.body_state(frames)
-        self._ref_cache = (frames.copy(), ref)
-        return ref
 
     def _finish_obs(self, obs: np.ndarray) -> np.ndarray:
         # A diverged world's state may be garbage; keep the batch finite for the learner.
@@ -257,24 +349,18 @@ class HumanoidVecEnv(VectorEnv):
             obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
         return obs
 
-    def _info(self, state: BodyState, ref: BodyState, proprio, terms: dict | None,
-              diverged: np.ndarray) -> dict[str, Any]:
-        lib = self.motion_lib
+    def _info(self, body: BodyState, obs, terms: dict | None, diverged: np.ndarray) -> dict[str, Any]:
         info = {f"reward_{k}": v for k, v in (terms or {}).items()}
-        info.update(
-            motion_id=self.motion_id.copy(),
-            motion_time=(self.frame - lib.starts[self.motion_id]) * (1.0 / lib.fps),
-            body_pos=state.pos.astype(np.float32),
-            ref_body_pos=ref.pos,
-            diverged=diverged,
-            amp_obs=amp_features(state, proprio=proprio).astype(np.float32),
-        )
+        info.update(body_pos=body.pos.astype(np.float32), diverged=diverged,
+                    amp_obs=amp_features(body, proprio=obs[:, :PROPRIO_DIM]).astype(np.float32))
+        lib = self.motion_lib
+        if lib is not None:
+            # The clip frame each world's pose came from at its last reset (AMP seeds its
+            # discriminator history there); reference-following tasks report the current frame.
+            info.update(motion_id=self.start_motion.copy(),
+                        motion_time=(self.start_frame - lib.starts[self.start_motion]) * (1.0 / lib.fps))
+        info.update(self._task_info(body))
         return info
-
-    @property
-    def observation_structure(self) -> dict[str, slice]:
-        """{"group/name": slice into the flat observation}; the module docstring has the table."""
-        raise NotImplementedError
 
     # ------------------------------------------------------------------ rendering
     def render(self):
@@ -284,16 +370,16 @@ class HumanoidVecEnv(VectorEnv):
             return None
         world = self.render_world
         data = self.sim.datas[world]
-        markers = self.motion_lib.body_pos[self.frame[world]] if self.show_reference else None
+        markers = self._markers(world) if self.show_markers else []
         if self.render_mode == "human":
-            return self._render_human(data, markers)
+            return self._render_human(data)
         if self._renderer is None:
             from ..render import FrameRenderer
 
             self._renderer = FrameRenderer(self.model, *self.render_size)
         return self._renderer.render(data, markers)
 
-    def _render_human(self, data, markers):
+    def _render_human(self, data):
         if self._viewer is None:
             if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
                 raise RuntimeError("render_mode='human' needs a display; use render_mode='rgb_array' "
@@ -315,17 +401,17 @@ class HumanoidVecEnv(VectorEnv):
 
 
 class SingleEnv(gym.Env):
-    """A `gymnasium.Env` over one world of a `HumanoidVecEnv`: the batch of one, not a second
-    implementation. Episodes end as the task says; the caller resets (no autoreset)."""
+    """A `gymnasium.Env` over one world of a task's `HumanoidVecEnv`: the batch of one, not a
+    second implementation. `gym.make` builds it from the task's vector class at registration.
+    Episodes end as the task says; the caller resets (no autoreset)."""
 
-    vec_class: type[HumanoidVecEnv] = HumanoidVecEnv
     metadata = {"render_modes": RENDER_MODES, "render_fps": CONTROL_FPS}
 
-    def __init__(self, render_mode: str | None = None, **kwargs):
+    def __init__(self, vec_class: type[HumanoidVecEnv], render_mode: str | None = None, **kwargs):
         for bad in ("num_envs", "autoreset_mode", "render_world"):
             if bad in kwargs:
                 raise TypeError(f"{bad!r} is for gym.make_vec, not gym.make")
-        self.vec = self.vec_class(1, autoreset_mode=AutoresetMode.DISABLED, render_mode=render_mode, **kwargs)
+        self.vec = vec_class(1, autoreset_mode=AutoresetMode.DISABLED, render_mode=render_mode, **kwargs)
         self.render_mode = render_mode
         self.action_space = self.vec.single_action_space
         self.observation_space = self.vec.single_observation_space
@@ -349,14 +435,15 @@ class SingleEnv(gym.Env):
     def close(self):
         self.vec.close()
 
-    # The task's public attributes, reachable as env.unwrapped.<name>.
-    observation_structure = property(lambda self: self.vec.observation_structure)
-    motion_lib = property(lambda self: self.vec.motion_lib)
-    model = property(lambda self: self.vec.model)
-    sim = property(lambda self: self.vec.sim)
-
     def reference_action(self) -> np.ndarray:
         return self.vec.reference_action()[0]
+
+    def __getattr__(self, name: str):
+        # The task's public attributes (observation_structure, motion_lib, model, sim ...),
+        # reachable as env.unwrapped.<name>.
+        if name.startswith("_") or name == "vec":
+            raise AttributeError(name)
+        return getattr(self.vec, name)
 
 
 def _unbatch(info: dict) -> dict:

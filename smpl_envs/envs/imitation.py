@@ -35,22 +35,33 @@ Reward (REFERENCE.md section 3, the anchors' code form, each term in `info["rewa
     energy  -0.00001 sum_j |tau_j qdot_j|   (torques of the last physics substep)
 The means run over the 24 bodies (and xyz); weights and scales are `gym.make` kwargs.
 
+Actions: `action_mode="absolute"` (PHC's, the default: PD target = pi x a per hinge, 5 x a for
+knee flexion) or `"residual"` (PD target = next reference frame's joint angles + residual_scale
+x that range x a; the zero action then tracks the reference with the PD controllers alone).
+`env.unwrapped.reference_action()` is the action that does so in either mode.
+
 `info` also carries the metrics' raw inputs (`body_pos`, `ref_body_pos`), `motion_id`,
-`motion_time`, `diverged`, and `amp_obs`, the AMP discriminator features of the step (232).
+`motion_time` (the reference frame being tracked), `diverged`, and `amp_obs`, the AMP
+discriminator features of the step (232).
+
+Evaluation (`smpl_envs.evaluate`, `smpl-envs eval`): PHC's protocol, every clip once from its
+first frame; success, E_g-mpjpe, E_mpjpe, E_acc, E_vel (`smpl_envs.evaluation.ClipProtocol`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..features import (IMITATION_GOAL_LAYOUT, KEYPOINT_GOAL_LAYOUT, SELF_OBS_LAYOUT, BodyState,
-                        layout_size, layout_slices, rotation_angle, tracking_obs, xp)
+from ..evaluation import ClipProtocol
+from ..features import IMITATION_GOAL_LAYOUT, KEYPOINT_GOAL_LAYOUT, BodyState, rotation_angle, tracking_obs, xp
 from ..humanoid.skeleton import BODY_NAMES
-from .base import HumanoidVecEnv, SingleEnv
+from .base import HumanoidVecEnv
+from .reference import RESIDUAL_SCALE, ReferenceTracker, check_action_mode
 
 REWARD_WEIGHTS = {"pos": 0.5, "rot": 0.3, "lin_vel": 0.1, "ang_vel": 0.1}
 REWARD_SCALES = {"pos": 100.0, "rot": 10.0, "lin_vel": 0.1, "ang_vel": 0.1}
 TERMS = ("pos", "rot", "lin_vel", "ang_vel")
+MARKER_RGBA = (0.9, 0.1, 0.1, 0.8)  # reference bodies in renders
 # The paper prints 5e-4, PHC's code uses 5e-5. Measured here on the walk clip with PHC's action
 # noise (std 0.055), the energy term is about -6 a step at 5e-4 and -0.6 at 5e-5, against +0.2 to
 # +0.3 of imitation reward for an untrained policy: the step reward is negative, so with early
@@ -106,58 +117,80 @@ class ImitationVecEnv(HumanoidVecEnv):
 
     kwargs: motions ("walk"; clip name, file, directory, saved library, list, or MotionLib),
     reward_weights / reward_scales (dicts over pos, rot, lin_vel, ang_vel), energy_weight,
-    termination_distance (m; None disables early termination), start ("random" or
-    "beginning"), max_episode_steps, autoreset_mode, substeps, num_threads, render_mode,
-    render_size, show_reference, render_world.
+    termination_distance (m; None disables early termination), action_mode ("absolute" or
+    "residual"), residual_scale, and the core's (start, cache, max_episode_steps,
+    autoreset_mode, substeps, num_threads, render_mode, render_size, render_world,
+    show_markers).
     """
 
-    goal_layout = IMITATION_GOAL_LAYOUT
-    obs_dim = layout_size(SELF_OBS_LAYOUT) + layout_size(IMITATION_GOAL_LAYOUT)
+    task_layout = {"goal": IMITATION_GOAL_LAYOUT}
+    evaluation = ClipProtocol()
     goal = "rotation"
 
-    def __init__(self, num_envs: int = 1, *, reward_weights: dict | None = None,
+    def __init__(self, num_envs: int = 1, *, motions="walk", reward_weights: dict | None = None,
                  reward_scales: dict | None = None, energy_weight: float = ENERGY_WEIGHT,
-                 termination_distance: float | None = TERMINATION_DISTANCE, **kwargs):
+                 termination_distance: float | None = TERMINATION_DISTANCE, action_mode: str = "absolute",
+                 residual_scale: float = RESIDUAL_SCALE, **kwargs):
+        if motions is None:
+            raise ValueError("motions: imitation needs reference clips (a clip name, file, directory or list)")
         self.reward_weights = _merge("reward_weights", REWARD_WEIGHTS, reward_weights)
         self.reward_scales = _merge("reward_scales", REWARD_SCALES, reward_scales)
         self.energy_weight = float(energy_weight)
+        if termination_distance is not None and not float(termination_distance) > 0:
+            raise ValueError(f"termination_distance must be a positive distance in metres or None, "
+                             f"got {termination_distance!r}")
         self.termination_distance = termination_distance
-        super().__init__(num_envs, **kwargs)
+        self.residual_scale = check_action_mode(action_mode, residual_scale)
+        self.action_mode = action_mode
+        super().__init__(num_envs, motions=motions, **kwargs)
+        self.ref = ReferenceTracker(self.motion_lib, self.num_envs)
 
-    def _observe(self, sim, ref_next, heading):
-        return tracking_obs(sim, ref_next, self.goal, heading)
+    # The tracker's arrays, for callers that read where each world is in its clip.
+    motion_id = property(lambda self: self.ref.motion_id)
+    frame = property(lambda self: self.ref.frame)
+    end_frame = property(lambda self: self.ref.end_frame)
 
-    def _evaluate(self, sim, ref):
-        reward, terms = imitation_reward(sim, ref, self.sim.actuator_force, self.reward_weights,
+    def _reset_task(self, ids, options):
+        qpos, qvel = super()._reset_task(ids, options)
+        self.ref.begin(ids, self.start_motion[ids], self.start_frame[ids])
+        return qpos, qvel
+
+    def _ctrl(self, actions):
+        return self.ref.pd_targets(actions, self.action_scale, self.action_mode, self.residual_scale)
+
+    def _advance(self, active):
+        self.ref.advance(active)
+
+    def _evaluate(self, body, heading):
+        ref = self.ref.current()
+        reward, terms = imitation_reward(body, ref, self.sim.actuator_force, self.reward_weights,
                                          self.reward_scales, self.energy_weight)
-        if self.termination_distance is None:
-            return reward, terms, np.zeros(self.num_envs, bool)
-        return reward, terms, imitation_terminated(sim, ref, self.termination_distance)
+        terminated = (np.zeros(self.num_envs, bool) if self.termination_distance is None
+                      else imitation_terminated(body, ref, self.termination_distance))
+        return reward, terms, terminated, self.ref.at_end()
 
-    @property
-    def observation_structure(self) -> dict[str, slice]:
-        return layout_slices({"self": SELF_OBS_LAYOUT, "goal": self.goal_layout})
+    def _observe(self, body, heading):
+        return tracking_obs(body, self.ref.next(), self.goal, heading)
+
+    def _task_info(self, body):
+        return {"motion_id": self.ref.motion_id.copy(), "motion_time": self.ref.motion_time(),
+                "ref_body_pos": self.ref.current().pos}
+
+    def _markers(self, world):
+        return [(self.motion_lib.body_pos[self.ref.frame[world]], MARKER_RGBA, 0.03)]
+
+    def reference_action(self) -> np.ndarray:
+        """(N, 69) actions whose PD targets are the next reference frame's joint angles (in either
+        action mode): the policy-free baseline of "track the reference with PD alone"."""
+        return self.ref.reference_action(self.action_scale, self.action_mode)
 
 
 class KeypointImitationVecEnv(ImitationVecEnv):
     """`gym.make_vec("SMPL/KeypointImitation-v0", ...)`: as Imitation, with the keypoint goal
     (positions and velocities only); same kwargs."""
 
-    goal_layout = KEYPOINT_GOAL_LAYOUT
-    obs_dim = layout_size(SELF_OBS_LAYOUT) + layout_size(KEYPOINT_GOAL_LAYOUT)
+    task_layout = {"goal": KEYPOINT_GOAL_LAYOUT}
     goal = "keypoint"
-
-
-class ImitationEnv(SingleEnv):
-    """`gym.make("SMPL/Imitation-v0", **kwargs)`: one world; kwargs as ImitationVecEnv."""
-
-    vec_class = ImitationVecEnv
-
-
-class KeypointImitationEnv(SingleEnv):
-    """`gym.make("SMPL/KeypointImitation-v0", **kwargs)`: one world; kwargs as ImitationVecEnv."""
-
-    vec_class = KeypointImitationVecEnv
 
 
 def _merge(name: str, defaults: dict, given: dict | None) -> dict:

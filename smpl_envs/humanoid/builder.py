@@ -8,6 +8,7 @@ the same control authority per kilogram.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -175,3 +176,55 @@ def build_humanoid(
     spec = build_spec(skeleton, joint_limits=joint_limits, timestep=timestep)
     model = spec.compile()
     return (model, spec) if return_spec else model
+
+
+@dataclass(frozen=True)
+class HumanoidAddresses:
+    """Where the humanoid lives inside a compiled model that may also hold other things (a box, a
+    target marker, a terrain): the simulator and the features read the humanoid through these,
+    never through fixed offsets such as `xpos[1:]` or `qpos[:, 7:]`.
+
+    body_ids (24,) model body ids in BODY_NAMES order; root (model body id of the pelvis);
+    qpos / qvel: slices of the humanoid's free root + 69 hinges (76 / 75 entries);
+    actuators: slice of its 69 position actuators; geom_ids (24,) one collision geom per body.
+    """
+
+    body_ids: np.ndarray
+    root: int
+    qpos: slice
+    qvel: slice
+    actuators: slice
+    geom_ids: np.ndarray
+
+    @property
+    def dof_qpos(self) -> slice:
+        """The 69 hinge angles inside qpos."""
+        return slice(self.qpos.start + 7, self.qpos.stop)
+
+    @property
+    def dof_qvel(self) -> slice:
+        """The 69 hinge rates inside qvel."""
+        return slice(self.qvel.start + 6, self.qvel.stop)
+
+
+def humanoid_addresses(model: mujoco.MjModel) -> HumanoidAddresses:
+    """The humanoid's addresses in `model` (built by `build_spec`, possibly with more added)."""
+    body_ids = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in BODY_NAMES])
+    if (body_ids < 0).any():
+        missing = [n for n, i in zip(BODY_NAMES, body_ids) if i < 0]
+        raise ValueError(f"model has no humanoid bodies {missing}: build it with smpl_envs.humanoid.build_spec")
+    root = int(body_ids[0])
+    jnt = model.body_jntadr[root]
+    q0, v0 = int(model.jnt_qposadr[jnt]), int(model.jnt_dofadr[jnt])
+    hinges = [f"{b}_{a}" for b in BODY_NAMES[1:] for a in HINGE_AXES]
+    acts = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in hinges])
+    qadr = np.array([model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in hinges])
+    # The builder lays the humanoid out contiguously (root then hinges in BODY_NAMES order); the
+    # slices below rely on that, so check it instead of assuming it.
+    if not (np.array_equal(qadr, q0 + 7 + np.arange(len(hinges)))
+            and np.array_equal(acts, acts[0] + np.arange(len(hinges)))):
+        raise ValueError("the humanoid's joints or actuators are not contiguous in this model")
+    geom_ids = np.array([model.body_geomadr[b] for b in body_ids])
+    return HumanoidAddresses(body_ids=body_ids, root=root, qpos=slice(q0, q0 + 7 + len(hinges)),
+                             qvel=slice(v0, v0 + 6 + len(hinges)), actuators=slice(int(acts[0]), int(acts[0]) + len(hinges)),
+                             geom_ids=geom_ids)

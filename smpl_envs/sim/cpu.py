@@ -8,6 +8,10 @@ exactly the same arithmetic (the tests check bit-equality), but it leaves positi
 com-based velocities computed for the *current* state, so observations need no extra
 `mj_forward`: after `mj_step` they would describe the state one substep earlier.
 
+The model may hold more than the humanoid (a box to strike, a target marker, a terrain): the
+humanoid is read through the builder's `HumanoidAddresses`, and the whole model's state stays
+available as `qpos`, `qvel` and `sensordata`.
+
 A world whose state turns non-finite, whose speeds explode, or that MuJoCo itself resets after a
 numerical warning is reported in the mask `step` returns; the task ends that episode and resets
 only that world.
@@ -22,6 +26,7 @@ import mujoco
 import numpy as np
 
 from ..features import BodyState
+from ..humanoid.builder import HumanoidAddresses, humanoid_addresses
 
 # Speeds no humanoid motion reaches (m/s, rad/s): treat them as a diverged simulation.
 MAX_SPEED = 1.0e3
@@ -33,23 +38,32 @@ class CPUSim:
     After construction, `set_state` and `step`, the arrays below hold every world's current state
     (row i is world i); they are overwritten in place by the next call.
 
-    qpos (N, nq), qvel (N, nv), ctrl (N, nu), actuator_force (N, nu) of the last substep, and
-    `bodies`, a `BodyState` of the 24 humanoid bodies (world body excluded).
+    qpos (N, nq), qvel (N, nv) of the whole model, ctrl (N, nu), actuator_force (N, nu) of the
+    last substep, sensordata (N, nsensordata), and `bodies`, a `BodyState` of the 24 humanoid
+    bodies. `humanoid` (HumanoidAddresses) says where the humanoid sits in the model.
     """
 
     def __init__(self, model: mujoco.MjModel, num_worlds: int, substeps: int,
-                 num_threads: int | None = None):
+                 num_threads: int | None = None, humanoid: HumanoidAddresses | None = None):
         if num_worlds < 1:
             raise ValueError(f"num_worlds must be >= 1, got {num_worlds}")
+        if int(substeps) < 1:
+            raise ValueError(f"substeps must be >= 1, got {substeps}")
         self.model = model
         self.num_worlds = num_worlds
         self.substeps = int(substeps)
+        self.humanoid = humanoid or humanoid_addresses(model)
+        ids = self.humanoid.body_ids
+        # Plain slices copy faster than index arrays; the builder makes the bodies contiguous.
+        self._bodies = slice(int(ids[0]), int(ids[0]) + len(ids)) if np.array_equal(ids, ids[0] + np.arange(len(ids))) else ids
+        self._root = self.humanoid.root
         self.datas = [mujoco.MjData(model) for _ in range(num_worlds)]
-        n, nb = num_worlds, model.nbody - 1
+        n, nb = num_worlds, len(ids)
         self.qpos = np.zeros((n, model.nq))
         self.qvel = np.zeros((n, model.nv))
         self.ctrl = np.zeros((n, model.nu))
         self.actuator_force = np.zeros((n, model.nu))
+        self.sensordata = np.zeros((n, model.nsensordata))
         self._xpos = np.zeros((n, nb, 3))
         self._xmat = np.zeros((n, nb, 9))
         self._cvel = np.zeros((n, nb, 6))
@@ -106,16 +120,19 @@ class CPUSim:
         self._gather(ids, elapsed=self.substeps * m.opt.timestep)
 
     def _gather(self, ids: np.ndarray, elapsed: float) -> None:
+        b, root, sensors = self._bodies, self._root, self.model.nsensordata > 0
         for i in ids:
             d = self.datas[i]
             self.qpos[i] = d.qpos
             self.qvel[i] = d.qvel
             self.actuator_force[i] = d.actuator_force
-            self._xpos[i] = d.xpos[1:]
-            self._xmat[i] = d.xmat[1:]
-            self._cvel[i] = d.cvel[1:]
-            self._com[i] = d.subtree_com[1]
+            self._xpos[i] = d.xpos[b]
+            self._xmat[i] = d.xmat[b]
+            self._cvel[i] = d.cvel[b]
+            self._com[i] = d.subtree_com[root]
             self._time[i] = d.time
+            if sensors:
+                self.sensordata[i] = d.sensordata
         # MuJoCo resets a world's data (time back to 0) on NaN or huge accelerations; beyond that,
         # non-finite or absurd speeds also count as divergence.
         speed = np.abs(self.qvel[ids]).max(-1)
@@ -125,14 +142,15 @@ class CPUSim:
 
     @property
     def bodies(self) -> BodyState:
-        """Positions, rotation matrices and velocities of the 24 bodies in the world frame."""
+        """Positions, rotation matrices and velocities of the humanoid's 24 bodies, world frame."""
         ang = self._cvel[..., :3]
         # cvel is the spatial velocity at the root subtree's centre of mass; move it to each
         # body origin: v = v_com + w x (x_body - x_com).
         r = self._xpos - self._com[:, None]
         lin = self._cvel[..., 3:] + _cross(ang, r)
         return BodyState(pos=self._xpos, rot=self._xmat.reshape(*self._xmat.shape[:2], 3, 3),
-                         lin_vel=lin, ang_vel=ang, dof_pos=self.qpos[:, 7:], dof_vel=self.qvel[:, 6:])
+                         lin_vel=lin, ang_vel=ang, dof_pos=self.qpos[:, self.humanoid.dof_qpos],
+                         dof_vel=self.qvel[:, self.humanoid.dof_qvel])
 
     def close(self) -> None:
         if self._pool is not None:

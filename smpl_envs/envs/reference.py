@@ -1,0 +1,96 @@
+"""Reference tracking: the reusable part of every task that follows a reference motion
+(Imitation, KeypointImitation, and next VR tracking and Recovery).
+
+A `ReferenceTracker` holds, per world, the clip and the global library frame the humanoid should
+match now; it advances one frame per policy step (policy rate = clip rate, so every lookup is an
+exact frame and nothing is interpolated) and stops at the clip's last frame. It also turns actions
+into PD targets in either action mode:
+
+- "absolute" (PHC): PD target = ACTION_SCALE * a, a in [-1, 1] (pi rad per hinge, 5 rad for knee
+  flexion);
+- "residual" (SimPoE's form, without its root force): PD target = the next reference frame's
+  joint angles + residual_scale * ACTION_SCALE * a, so the zero action tracks the reference with
+  the PD controllers alone and the policy learns corrections.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..features import BodyState
+from ..motion.library import MotionLib
+
+ACTION_MODES = ("absolute", "residual")
+RESIDUAL_SCALE = 0.25  # fraction of the absolute range: 0.25 pi rad per hinge (measured, issue 10)
+
+
+def check_action_mode(action_mode: str, residual_scale: float) -> float:
+    if action_mode not in ACTION_MODES:
+        raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {action_mode!r}")
+    scale = float(residual_scale)
+    if not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"residual_scale must be a positive number, got {residual_scale!r}")
+    return scale
+
+
+class ReferenceTracker:
+    """Per-world reference frames of `lib` for `num_worlds` worlds (arrays of shape (N,))."""
+
+    def __init__(self, lib: MotionLib, num_worlds: int):
+        self.lib = lib
+        self.motion_id = np.zeros(num_worlds, np.int64)
+        self.frame = np.zeros(num_worlds, np.int64)      # global frame the simulated state should match
+        self.end_frame = np.zeros(num_worlds, np.int64)  # last frame of each world's clip
+        self._cache = None
+
+    def begin(self, ids: np.ndarray, motion_ids: np.ndarray, frames: np.ndarray) -> None:
+        """Worlds `ids` start following clips `motion_ids` at global frames `frames`."""
+        self.motion_id[ids] = motion_ids
+        self.frame[ids] = frames
+        self.end_frame[ids] = self.lib.starts[motion_ids] + self.lib.lengths[motion_ids] - 1
+
+    def advance(self, active: np.ndarray | None = None) -> None:
+        """One frame on, for every world or those in the mask `active`; clips hold their last frame."""
+        if active is None:
+            np.minimum(self.frame + 1, self.end_frame, out=self.frame)
+        else:
+            self.frame[active] = np.minimum(self.frame[active] + 1, self.end_frame[active])
+
+    def at_end(self) -> np.ndarray:
+        return self.frame >= self.end_frame
+
+    def next_frame(self) -> np.ndarray:
+        return np.minimum(self.frame + 1, self.end_frame)
+
+    def motion_time(self) -> np.ndarray:
+        return (self.frame - self.lib.starts[self.motion_id]) * (1.0 / self.lib.fps)
+
+    def bodies(self, frames: np.ndarray) -> BodyState:
+        """Reference bodies at global `frames`. The frames observed as "next" in one step are the
+        frames rewarded in the following one, so the last lookup is cached."""
+        cached = self._cache
+        if cached is not None and np.array_equal(cached[0], frames):
+            return cached[1]
+        ref = self.lib.body_state(frames)
+        self._cache = (frames.copy(), ref)
+        return ref
+
+    def current(self) -> BodyState:
+        return self.bodies(self.frame)
+
+    def next(self) -> BodyState:
+        return self.bodies(self.next_frame())
+
+    def pd_targets(self, actions: np.ndarray, action_scale: np.ndarray, mode: str, residual_scale: float) -> np.ndarray:
+        """(N, 69) PD targets of actions in [-1, 1] under `mode` (module docstring)."""
+        if mode == "absolute":
+            return actions * action_scale
+        target = self.lib.dof_pos[self.next_frame()] + actions * (residual_scale * action_scale)
+        return np.clip(target, -action_scale, action_scale)
+
+    def reference_action(self, action_scale: np.ndarray, mode: str) -> np.ndarray:
+        """(N, 69) actions whose PD targets are the next reference frame's joint angles: the
+        policy-free baseline "track the reference with the PD controllers alone"."""
+        if mode == "residual":
+            return np.zeros((len(self.frame), len(action_scale)), np.float32)
+        return np.clip(self.lib.dof_pos[self.next_frame()] / action_scale, -1.0, 1.0).astype(np.float32)

@@ -1,0 +1,246 @@
+"""Adapters from the suite's native batched envs to other libraries' conventions.
+
+`SB3VecEnv` presents a Gymnasium `VectorEnv` (such as `gym.make_vec("SMPL/Imitation-v0",
+num_envs=N)`: N worlds stepped together in one process) as a Stable-Baselines3 `VecEnv`, which
+SB3 requires and which the native env is not::
+
+    import smpl_envs
+    from smpl_envs.wrappers import SB3VecEnv
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+
+    venv = SB3VecEnv("SMPL/Imitation-v0", num_envs=16, max_episode_steps=300)
+    venv = VecNormalize(VecMonitor(venv))   # episode statistics for SB3's logs, then normalisation
+    model = PPO("MlpPolicy", venv, n_steps=256, batch_size=1024)
+    model.learn(1_000_000)
+
+Stable-Baselines3 is an optional dependency: this module imports without it, and only using
+`SB3VecEnv` needs it (it is built on first access, so importing this module stays light).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+
+__all__ = ["SB3VecEnv"]
+
+# Keys of a SameStep info dict that describe the finished episode rather than the current one.
+_FINAL_KEYS = ("final_obs", "final_info")
+
+
+class _SB3VecEnvMethods:
+    """A Stable-Baselines3 `VecEnv` over a native batched env: N worlds in one process.
+
+    `SB3VecEnv(env_or_id, num_envs=None, **make_kwargs)`: `env_or_id` is an env id, made with
+    `gym.make_vec(env_or_id, num_envs=num_envs or 1, autoreset_mode="SameStep", **make_kwargs)`
+    (make_kwargs are the task's kwargs, e.g. motions, max_episode_steps, termination_distance),
+    or an existing `gymnasium.vector.VectorEnv` made with autoreset_mode="SameStep".
+
+    SB3's conventions: `reset()` returns the observations only (their infos are in
+    `reset_infos`); `step` returns float32 observations, float32 rewards, `dones` =
+    terminated | truncated and a list of N info dicts. A finished world restarts within the same
+    step: the returned observation is the new episode's first, the last one of the finished
+    episode is `infos[i]["terminal_observation"]`, `infos[i]` is the info of the finished
+    episode's last step (from `info["final_info"]`, plus keys that only wrappers added) and the
+    new episode's reset info goes to `reset_infos[i]`.
+    `infos[i]["TimeLimit.truncated"]` is truncated and not terminated, for every world and step.
+    Per-world info dicts hold row i of each batched info array (keys starting with "_" and the
+    final_* keys are left out; a key whose "_key" mask is False for world i is absent).
+
+    The worlds share one env object, hence these departures from a VecEnv of N separate envs:
+    `seed(s)` seeds the batched env's one generator with s at the next reset (every world's
+    entry of the returned list is s); `set_options` takes one options dict for all worlds (the
+    native options such as reset_mask or motion_ids address worlds themselves); `get_attr`
+    returns the batched env's attribute once per requested index (an (N, ...) array stays
+    whole); `env_method` calls the method once and repeats its result; `set_attr` sets the
+    attribute for all worlds and refuses a subset; `env_is_wrapped` is False for every world
+    (the worlds are not gymnasium.Env objects); `render()` gives the batched env's frame (world
+    0 unless its `render_world` says otherwise) when made with render_mode="rgb_array".
+    Episode returns and lengths for SB3's logs come from wrapping this in `VecMonitor`.
+    """
+
+    def __init__(self, env_or_id: str | VectorEnv, num_envs: int | None = None, **make_kwargs):
+        self.vector_env = _make_same_step(env_or_id, num_envs, make_kwargs)
+        self._actions: np.ndarray | None = None
+        self._closed = False
+        venv = self.vector_env
+        super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
+        if "render_fps" in venv.metadata:  # SB3's VecVideoRecorder reads it
+            self.metadata = {**self.metadata, "render_fps": venv.metadata["render_fps"]}
+
+    # ------------------------------------------------------------------ stepping
+    def reset(self) -> np.ndarray:
+        options = self._shared_options()
+        obs, info = self.vector_env.reset(seed=self._seeds[0], options=options)
+        self.reset_infos = [_world_info(info, i) for i in range(self.num_envs)]
+        # As SB3's own VecEnvs: seeds and options apply to one reset only.
+        self._reset_seeds()
+        self._reset_options()
+        return np.array(obs, dtype=np.float32)
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self):
+        if self._actions is None:
+            raise RuntimeError("step_wait() called without step_async(actions)")
+        actions, self._actions = self._actions, None
+        obs, reward, terminated, truncated, info = self.vector_env.step(actions)
+        # A copy: the learner keeps these arrays while the env may reuse its buffers.
+        obs = np.array(obs, dtype=np.float32)
+        terminated, truncated = np.asarray(terminated, bool), np.asarray(truncated, bool)
+        dones = terminated | truncated
+        infos = [_world_info(info, i) for i in range(self.num_envs)]
+        if dones.any():
+            final_obs, final_mask = info.get("final_obs"), info.get("_final_obs")
+            if final_obs is None or final_mask is None or not np.asarray(final_mask)[dones].all():
+                raise RuntimeError("the vector env ended episodes without info['final_obs']; it must "
+                                   "be made with autoreset_mode='SameStep'")
+            final_info, final_info_mask = info.get("final_info"), info.get("_final_info")
+            for i in np.flatnonzero(dones):
+                # The info already returned describes the new episode: it is the reset info.
+                self.reset_infos[i] = infos[i]
+                infos[i] = dict(infos[i])
+                if final_info is not None and final_info_mask is not None and final_info_mask[i]:
+                    # The last step's values win; keys only wrappers add on top (e.g. Gymnasium's
+                    # RecordEpisodeStatistics' "episode") stay.
+                    infos[i].update(_world_info(final_info, i))
+                infos[i]["terminal_observation"] = np.array(final_obs[i], dtype=np.float32)
+        for i in range(self.num_envs):
+            infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+        return obs, np.asarray(reward, dtype=np.float32), dones, infos
+
+    def seed(self, seed: int | None = None) -> list[int | None]:
+        if seed is None:  # as SB3 does: pick one, so the seed returned can be logged and reused
+            seed = int(np.random.randint(0, np.iinfo(np.uint32).max, dtype=np.uint32))
+        self._seeds = [int(seed)] * self.num_envs
+        return list(self._seeds)
+
+    def _shared_options(self) -> dict | None:
+        options = [dict(o or {}) for o in self._options]
+        if not any(options):
+            return None
+        if any(o != options[0] for o in options[1:]):
+            raise ValueError("SB3VecEnv passes one options dict to the batched env's reset; give the same "
+                             "options for every world (use its reset_mask / motion_ids options to address "
+                             "single worlds)")
+        return options[0]
+
+    # ------------------------------------------------------------------ attributes and methods
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        value = self._env_attr(attr_name)
+        return [value for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        self._require_all(indices, "set_attr")
+        setattr(self._attr_owner(attr_name), attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        result = self._env_attr(method_name)(*method_args, **method_kwargs)
+        return [result for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def _env_attr(self, name: str) -> Any:
+        return getattr(self._attr_owner(name), name)
+
+    def _attr_owner(self, name: str) -> Any:
+        # Gymnasium's vector wrappers do not forward arbitrary attributes; the task env has them.
+        venv = self.vector_env
+        if hasattr(venv, name) or not hasattr(venv.unwrapped, name):
+            return venv
+        return venv.unwrapped
+
+    def _require_all(self, indices, what: str) -> None:
+        chosen = sorted({int(i) % self.num_envs for i in self._get_indices(indices)})
+        if chosen != list(range(self.num_envs)):
+            raise ValueError(f"{what}: the {self.num_envs} worlds share one env object, so an attribute can only "
+                             f"be set for all of them (indices=None), not for {chosen}")
+
+    # ------------------------------------------------------------------ rendering and closing
+    def get_images(self) -> list[np.ndarray | None]:
+        # One frame: the batched env renders one world, and SB3's render tiles the list it gets.
+        if self.render_mode != "rgb_array":
+            return [None]
+        return [self.vector_env.render()]
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.vector_env.close()
+
+
+def _make_same_step(env_or_id: str | VectorEnv, num_envs: int | None, make_kwargs: dict) -> VectorEnv:
+    if isinstance(env_or_id, str):
+        mode = make_kwargs.pop("autoreset_mode", AutoresetMode.SAME_STEP)
+        if _autoreset_value(mode) != AutoresetMode.SAME_STEP.value:
+            raise ValueError(f"SB3VecEnv needs autoreset_mode='SameStep' (SB3 resets within the step), got {mode!r}")
+        kwargs: dict[str, Any] = dict(make_kwargs)
+        if gym.spec(env_or_id).vector_entry_point is None:
+            # Other ids are vectorised by gymnasium's SyncVectorEnv, which takes the mode itself.
+            kwargs["vector_kwargs"] = {**kwargs.get("vector_kwargs", {}), "autoreset_mode": AutoresetMode.SAME_STEP}
+        else:
+            kwargs["autoreset_mode"] = AutoresetMode.SAME_STEP.value
+        return gym.make_vec(env_or_id, num_envs=1 if num_envs is None else int(num_envs), **kwargs)
+    if not isinstance(env_or_id, VectorEnv):
+        raise TypeError(f"SB3VecEnv takes an env id or a gymnasium.vector.VectorEnv, got {type(env_or_id).__name__}; "
+                        "for single gymnasium.Env objects use SB3's DummyVecEnv")
+    if make_kwargs:
+        raise TypeError(f"kwargs {sorted(make_kwargs)} only apply when SB3VecEnv makes the env from an id")
+    if num_envs is not None and num_envs != env_or_id.num_envs:
+        raise ValueError(f"num_envs={num_envs} but the given env has {env_or_id.num_envs} worlds")
+    mode = env_or_id.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
+    if _autoreset_value(mode) != AutoresetMode.SAME_STEP.value:
+        raise ValueError(f"the vector env's autoreset mode is {_autoreset_value(mode)!r}; SB3VecEnv needs one made "
+                         "with autoreset_mode='SameStep'")
+    return env_or_id
+
+
+def _autoreset_value(mode) -> str:
+    return mode.value if isinstance(mode, AutoresetMode) else str(mode)
+
+
+def _world_info(info: dict, i: int) -> dict:
+    """World i's info from a batched (Gymnasium vector) info dict."""
+    out = {}
+    for key, value in info.items():
+        if key.startswith("_") or key in _FINAL_KEYS:
+            continue
+        mask = info.get("_" + key)
+        if mask is not None and not mask[i]:
+            continue  # Gymnasium's convention: the key does not apply to this world this step
+        if isinstance(value, dict):
+            out[key] = _world_info(value, i)
+        elif isinstance(value, np.ndarray) and value.ndim > 0:
+            out[key] = value[i].copy()
+        else:  # a value the env did not batch: the same for every world
+            out[key] = value
+    return out
+
+
+def _sb3_vec_env_class() -> type:
+    try:
+        from stable_baselines3.common.vec_env import VecEnv
+    except ImportError as e:
+        raise ImportError("smpl_envs.wrappers.SB3VecEnv needs Stable-Baselines3: pip install stable-baselines3") from e
+    cls = type("SB3VecEnv", (_SB3VecEnvMethods, VecEnv), {"__module__": __name__,
+                                                          "__doc__": _SB3VecEnvMethods.__doc__})
+    cls.__qualname__ = "SB3VecEnv"
+    return cls
+
+
+def __getattr__(name: str):
+    # Built on first use, so that importing this module neither needs nor loads SB3 (and torch).
+    if name == "SB3VecEnv":
+        cls = _sb3_vec_env_class()
+        globals()[name] = cls
+        return cls
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

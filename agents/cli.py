@@ -26,11 +26,6 @@ from .plot import EmptyLogError, plot_run, read_progress
 from .recipes import (RecipeError, apply_overrides, available_recipes, find_checkpoint, load_recipe,
                       make_run_dir, read_config, run_dir_of)
 
-# Env kwargs that shape training episodes, or that evaluate()/record() choose themselves; the
-# rest (reward weights, substeps, threads ...) carry over from the run to its evaluation and video.
-TRAIN_ONLY_KWARGS = ("motions", "num_envs", "start", "max_episode_steps", "termination_distance",
-                     "autoreset_mode", "render_mode", "render_world")
-EVAL_KEY = "success_rate"
 # Settings a checkpoint fixes: its weights only fit these.
 FIXED_ON_RESUME = ("env.id", "agent.class") + tuple(
     f"agent.hyperparams.{k}" for k in ("actor_hidden", "critic_hidden", "disc_hidden", "activation",
@@ -80,7 +75,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("target", metavar="RUN_OR_CHECKPOINT")
     p.add_argument("--motions", nargs="+", help="clip names or paths (default: the run's eval or training motions)")
     p.add_argument("--num-envs", type=int, help="worlds evaluated at once (default: the run's eval.num_envs, or 8)")
-    p.add_argument("--threshold", type=float, help="failure distance in metres (default: the run's, or 0.5)")
+    p.add_argument("--threshold", type=float, help="imitation: failure distance in metres (default: the run's, or 0.5)")
+    p.add_argument("--episodes", type=int, help="goal tasks: episodes to run (default: the run's, or 32)")
+    p.add_argument("--option", dest="options", action="append", default=[], metavar="KEY=VALUE",
+                   help="any other option of the task's evaluation protocol (repeatable)")
     p.add_argument("--checkpoint", choices=("best", "last"), default="best",
                    help="which checkpoint of a run (best falls back to last)")
     p.add_argument("--out", type=Path, help="JSON result path (default for a run: RUN/eval.json); "
@@ -194,8 +192,9 @@ def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool):
     if recipe["train"]["checkpoint_every"] > 0:
         callbacks.append(CheckpointCallback(recipe["train"]["checkpoint_every"], run / "checkpoints"))
     if recipe["eval"]["every"] > 0:
-        eval_cb = EvalCallback(recipe["eval"]["every"], evaluator, run / "checkpoints", key=EVAL_KEY,
-                               best=_best_logged(run, EVAL_KEY) if resuming else None)
+        key, minimize = evaluator.protocol.key, evaluator.protocol.minimize
+        eval_cb = EvalCallback(recipe["eval"]["every"], evaluator, run / "checkpoints", key=key, minimize=minimize,
+                               best=_best_logged(run, key, minimize) if resuming else None)
         callbacks.append(eval_cb)
     if recipe["train"]["max_minutes"] is not None:
         callbacks.append(WallClockBudget(recipe["train"]["max_minutes"]))
@@ -213,7 +212,7 @@ class WallClockBudget:
         return time.monotonic() < self.deadline
 
 
-def _best_logged(run: Path, key: str) -> float | None:
+def _best_logged(run: Path, key: str, minimize: bool = False) -> float | None:
     """The best eval/<key> the run logged before, so a resumed run's best.pt only gets replaced
     by a better policy. None when there is no best.pt to protect."""
     import numpy as np
@@ -227,7 +226,7 @@ def _best_logged(run: Path, key: str) -> float | None:
         return None
     if values is None or not np.isfinite(values).any():
         return None
-    return float(np.nanmax(values))
+    return float(np.nanmin(values) if minimize else np.nanmax(values))
 
 
 def _finish_run(agent, recipe: dict, run: Path, evaluator: "Evaluator", eval_cb, progress: bool) -> None:
@@ -254,32 +253,37 @@ def _finish_run(agent, recipe: dict, run: Path, evaluator: "Evaluator", eval_cb,
 
 # ---------------------------------------------------------------------------------------- evaluation
 class Evaluator:
-    """`evaluate_fn` for EvalCallback: the PHC protocol on the agent's own env, returning the
-    summary's numbers; keeps the full result of the latest call for eval.json."""
+    """`evaluate_fn` for EvalCallback: the task's own evaluation protocol on the agent's env,
+    returning the summary's numbers; keeps the full result of the latest call for eval.json."""
 
     def __init__(self, recipe: dict, progress: bool = True):
+        from smpl_envs.evaluation import protocol_for
+
+        self.protocol = protocol_for(recipe["env"]["id"])
         self.motions, self.num_envs = recipe["eval"]["motions"], recipe["eval"]["num_envs"]
-        self.threshold, self.progress = recipe["eval"]["threshold"], progress
+        self.options, self.progress = recipe["eval"]["options"], progress
         self.last = None
 
     def __call__(self, agent) -> dict[str, float]:
-        self.last = evaluate_agent(agent, self.motions, self.num_envs, self.threshold, self.progress)
+        self.last = evaluate_agent(agent, self.motions, self.num_envs, self.progress, **self.options)
         return summary_metrics(self.last.summary)
 
 
-def evaluate_agent(agent, motions=None, num_envs: int = 8, threshold: float = 0.5, progress: bool = True):
-    """smpl_envs.evaluate of `agent` on the env it trained on (motions default: its training ones)."""
+def evaluate_agent(agent, motions=None, num_envs: int = 8, progress: bool = True, **options):
+    """smpl_envs.evaluate of `agent` on the env it trained on, with that env's kwargs as its task's
+    protocol carries them over (motions default: the training ones)."""
     import smpl_envs
+    from smpl_envs.evaluation import protocol_for
 
     if agent.env_id is None:
         raise RecipeError("the checkpoint records no env id to evaluate on")
-    return smpl_envs.evaluate(agent, env=agent.env_id, motions=motions or agent.env_kwargs.get("motions"),
-                              num_envs=num_envs, threshold=threshold, progress=progress,
-                              env_kwargs=eval_env_kwargs(agent.env_kwargs))
-
-
-def eval_env_kwargs(env_kwargs: dict) -> dict:
-    return {k: v for k, v in env_kwargs.items() if k not in TRAIN_ONLY_KWARGS}
+    try:
+        protocol = protocol_for(agent.env_id)
+        return smpl_envs.evaluate(agent, env=agent.env_id, motions=motions or agent.env_kwargs.get("motions"),
+                                  num_envs=num_envs, progress=progress,
+                                  env_kwargs=protocol.eval_kwargs(agent.env_kwargs), **options)
+    except ValueError as e:  # an option or kwarg the task's protocol refuses
+        raise RecipeError(str(e)) from None
 
 
 def summary_metrics(summary: dict) -> dict[str, float]:
@@ -297,11 +301,22 @@ def _write_eval(result, json_path: Path) -> None:
 
 
 def cmd_eval(args) -> int:
+    from .recipes import parse_override
+
     agent, ckpt, run, config = _load_target(args)
     ev = (config or {}).get("eval", {})
+    # The run's evaluation options, then the command line's: --threshold and --episodes are
+    # shorthands for the options of the imitation and goal-task protocols, --option for any.
+    options = dict(ev.get("options") or {})
+    if "threshold" in ev:  # run configs from before eval.options
+        options["threshold"] = ev["threshold"]
+    options.update(parse_override(o) for o in args.options)
+    options.update({k: v for k, v in (("threshold", args.threshold), ("episodes", args.episodes)) if v is not None})
+    if args.num_envs is not None and args.num_envs < 1:
+        raise RecipeError(f"--num-envs must be >= 1, got {args.num_envs}")
     motions = args.motions[0] if args.motions and len(args.motions) == 1 else args.motions
     result = evaluate_agent(agent, motions or ev.get("motions"), args.num_envs or ev.get("num_envs") or 8,
-                            args.threshold or ev.get("threshold") or 0.5, progress=not args.no_progress)
+                            progress=not args.no_progress, **options)
     print(f"checkpoint: {ckpt} ({agent.num_timesteps:,} timesteps)")
     out = args.out or (run / "eval.json" if run is not None and Path(args.target).is_dir() else None)
     if out is None:
@@ -314,20 +329,17 @@ def cmd_eval(args) -> int:
 # ---------------------------------------------------------------------------------------- video
 def record_video(agent, path: Path, steps: int, motions=None, fps: float | None = None, seed: int | None = None,
                  progress: bool = True) -> dict:
-    """An mp4 of the deterministic policy on its training env, from the start of one clip."""
+    """An mp4 of the deterministic policy in one world of its training env, set up as its task's
+    protocol says (imitation: from the start of a clip)."""
     import smpl_envs
+    from smpl_envs.evaluation import protocol_for
 
+    kwargs = protocol_for(agent.env_id).record_kwargs(agent.env_kwargs)
     motions = motions or agent.env_kwargs.get("motions")
-    if isinstance(motions, (list, tuple)):  # a single env imitates one clip: show the first
-        motions = motions[0]
-    kwargs = eval_env_kwargs(agent.env_kwargs)
-    # Keep the training termination and episode length, so a fall restarts the clip as in training.
-    kwargs.update({k: agent.env_kwargs[k] for k in ("max_episode_steps", "termination_distance")
-                   if k in agent.env_kwargs})
     if motions is not None:
         kwargs["motions"] = motions
     return smpl_envs.record(agent.env_id, agent, path, steps=steps, episodes=None, fps=fps, seed=seed,
-                            progress=progress, start="beginning", **kwargs)
+                            progress=progress, **kwargs)
 
 
 def cmd_record(args) -> int:

@@ -76,12 +76,17 @@ def panels_for(columns: dict[str, np.ndarray]) -> list[Panel]:
     candidates = [
         Panel("Episode length", "steps", [("rollout/ep_len_mean", "mean episode length")]),
         Panel("Episode return", "return", [("rollout/ep_rew_mean", "mean episode return")]),
-        Panel("Imitation reward terms", "reward per step",
+        Panel("Reward terms", "reward per step",
               [(k, k.removeprefix("rollout/reward_")) for k in reward_terms]
               + [("rollout/step_reward_mean", "total (as trained on)")]),
         Panel("Evaluation", "success rate", [("eval/success_rate", "success rate")],
               [("eval/mpjpe_g", "MPJPE-g (successful clips)"), ("eval/all_mpjpe_g", "MPJPE-g (all clips)")],
               "mm"),
+        # Goal tasks' episode evaluations: fractions on the left, distances and errors on the right.
+        Panel("Evaluation", "fraction / score",
+              [("eval/score", "score (reward per step over 10 s)"), ("eval/no_fall", "episodes without a fall"),
+               ("eval/toppled", "boxes toppled"), ("eval/targets_reached", "targets reached")],
+              [("eval/speed_error", "speed error (m/s)"), ("eval/hand_distance", "hand distance (m)")], "m/s, m"),
         Panel("Adversarial motion prior", "reward / accuracy",
               [("amp/style_reward_mean", "style reward"), ("amp/task_reward_mean", "task reward"),
                ("amp/disc_agent_acc", "D accuracy on policy"), ("amp/disc_demo_acc", "D accuracy on demo")]),

@@ -6,7 +6,10 @@
 
 A recipe has the sections `env`, `agent`, `train`, `eval` and `video` (see tasks/*.yaml) and may
 carry `profiles`: named sets of dotted-key overrides (`agent.hyperparams.batch_size: 16384`) that
-rescale it, e.g. from this CPU box to PHC's GPU budget. Resolving a recipe applies the profile,
+rescale it, e.g. from this CPU box to PHC's GPU budget. `base: <recipe>` starts from another
+recipe and overrides only what differs (mappings merge key by key, except env.kwargs and
+eval.options, which are stated whole; anything else is replaced; profiles are not inherited), so shared values are written once. `eval.options` are the task's evaluation options (imitation:
+threshold; goal tasks: episodes, seed), checked against the task's protocol. Resolving a recipe applies the profile,
 then the command line's `key=value` overrides, fills in defaults and validates every section, so a
 typo fails before any env is built rather than hours into a run.
 """
@@ -34,7 +37,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     "agent": {"class": None, "hyperparams": {}},
     "train": {"total_timesteps": None, "max_minutes": None, "seed": 0, "checkpoint_every": 0, "log_interval": 1,
               "device": "auto"},
-    "eval": {"every": 0, "num_envs": 8, "motions": None, "threshold": 0.5},
+    "eval": {"every": 0, "num_envs": 8, "motions": None, "options": {}},
     "video": {"steps": 300, "fps": None, "motions": None},
 }
 # Bookkeeping written into a resolved recipe (and so into a run's config.yaml).
@@ -134,12 +137,7 @@ def load_recipe(name_or_path: str | os.PathLike, overrides: Iterable[str] = (), 
     `overrides` so a run's config.yaml says how it was made.
     """
     path = resolve_recipe_path(name_or_path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        raise RecipeError(f"{path} is not valid YAML: {' '.join(str(e).split())}") from None
-    if not isinstance(raw, dict):
-        raise RecipeError(f"{path} must hold a mapping with sections {', '.join(DEFAULTS)}")
+    raw = _read_with_bases(path, ())
     profiles = raw.pop("profiles", None) or {}
     if not isinstance(profiles, dict):
         raise RecipeError(f"{path}: `profiles` must map profile names to overrides")
@@ -152,6 +150,46 @@ def load_recipe(name_or_path: str | os.PathLike, overrides: Iterable[str] = (), 
             set_dotted(raw, str(key), _fix_floats(value))
         raw["profile"] = profile
     return apply_overrides(raw, overrides)
+
+
+def _read_with_bases(path: Path, seen: tuple[Path, ...]) -> dict:
+    """The recipe at `path` merged over its `base:` chain."""
+    if path.resolve() in seen:
+        chain = " -> ".join(p.stem for p in (*seen, path))
+        raise RecipeError(f"recipe bases form a loop: {chain}")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        raise RecipeError(f"{path} is not valid YAML: {' '.join(str(e).split())}") from None
+    if not isinstance(raw, dict):
+        raise RecipeError(f"{path} must hold a mapping with sections {', '.join(DEFAULTS)}")
+    base = raw.pop("base", None)
+    if base is None:
+        return raw
+    # Profiles rescale one recipe's own values, so each recipe states its own.
+    if not isinstance(base, str):
+        raise RecipeError(f"{path}: base must be a recipe name or path, got {base!r}")
+    # A relative base path is relative to the recipe that names it; a bare name is looked up.
+    candidate = path.parent / base
+    base_path = candidate if candidate.suffix in (".yaml", ".yml") and candidate.is_file() else resolve_recipe_path(base)
+    inherited = _read_with_bases(base_path, (*seen, path.resolve()))
+    inherited.pop("profiles", None)
+    return _deep_merge(inherited, raw)
+
+
+# Mappings a recipe states whole: their keys belong to one task, so a base's do not carry over.
+_REPLACED_WHOLE = ("env.kwargs", "eval.options")
+
+
+def _deep_merge(base: dict, over: dict, prefix: str = "") -> dict:
+    out = copy.deepcopy(base)
+    for key, value in over.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict) and isinstance(out.get(key), dict) and path not in _REPLACED_WHOLE:
+            out[key] = _deep_merge(out[key], value, f"{path}.")
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
 
 
 def apply_overrides(recipe: dict, overrides: Iterable[str] = ()) -> dict:
@@ -178,6 +216,9 @@ def validate_recipe(recipe: dict) -> dict:
         given = recipe.get(section) or {}
         if not isinstance(given, dict):
             raise RecipeError(f"recipe section {section!r} must be a mapping, got {given!r}")
+        if section == "eval" and "threshold" in given:  # run configs from before eval.options
+            given = {**given, "options": {**(given.get("options") or {}), "threshold": given["threshold"]}}
+            given.pop("threshold")
         extra = sorted(set(given) - set(defaults))
         if extra:
             raise RecipeError(f"unknown key(s) {[f'{section}.{k}' for k in extra]}; "
@@ -261,8 +302,18 @@ def _check_budgets(recipe: dict) -> None:
         raise RecipeError(f"train.device must be a string such as auto, cpu or cuda, got {train['device']!r}")
     _positive_int(ev, "eval", "every", allow_zero=True)
     _positive_int(ev, "eval", "num_envs")
-    if not isinstance(ev["threshold"], (int, float)) or isinstance(ev["threshold"], bool) or ev["threshold"] <= 0:
-        raise RecipeError(f"eval.threshold must be a positive distance in metres, got {ev['threshold']!r}")
+    if ev["options"] is None:
+        ev["options"] = {}
+    if not isinstance(ev["options"], dict):
+        raise RecipeError(f"eval.options must be a mapping of the task's evaluation options, got {ev['options']!r}")
+    env_id = recipe["env"]["id"]
+    if env_id.startswith("SMPL/"):
+        from smpl_envs.evaluation import protocol_for
+
+        try:
+            ev["options"] = protocol_for(env_id).check_options(ev["options"])
+        except ValueError as e:
+            raise RecipeError(f"eval.options: {e}") from None
     _positive_int(video, "video", "steps", allow_zero=True)
     if video["fps"] is not None and (not isinstance(video["fps"], (int, float)) or video["fps"] <= 0):
         raise RecipeError(f"video.fps must be a positive number or null, got {video['fps']!r}")

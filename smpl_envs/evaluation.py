@@ -421,7 +421,8 @@ def _finish_episode(protocol: EpisodeProtocol, log: dict, terminated: bool, trun
     arrays = {k: np.asarray(v) for k, v in log.items()}
     length = len(arrays["reward"])
     arrays.update(terminated=bool(terminated), truncated=bool(truncated), diverged=diverged, length=length)
-    row = {"length": length, "fell": bool(terminated and not diverged), "diverged": diverged,
+    # An episode the task or a divergence ended early counts as a fall: it did not last.
+    row = {"length": length, "no_fall": not terminated, "diverged": diverged,
            "score": float(arrays["reward"].sum() / limit)}
     row.update(protocol.episode_metrics(arrays))
     return row

@@ -1,0 +1,112 @@
+"""`SMPL/Reach-v0`: bring the right hand to a target point (REFERENCE.md section 5).
+
+Each world has a target within reach of the humanoid: x, y U[-1, 1] m around the pelvis in its
+heading frame at the time it is drawn, height z U[0.2, 2.0] m above the floor (`target_range_xy`,
+`target_range_z`), redrawn every U[resample_interval] (50-99) steps. A marker shows the target in
+renders.
+
+Observation (float32, heading frame):
+
+| slice | size | content |
+|---|---|---|
+| 0:358 | 358 | self observation (`smpl_envs.features.SELF_OBS_LAYOUT`) |
+| 358:361 | 3 | target position relative to the pelvis (m) |
+
+Reward (one term, `info["reward_reach"]`): exp(-4 ||p_hand - p_target||^2), right hand.
+
+Episode: 300 steps (10 s); a fall ends it. Starts: the rest pose, or random frames of `motions=`.
+
+`info`: `hand_distance` (m), `target_pos` (world, (N, 3)), `target_index` (targets drawn so far
+in the episode, from 0), plus the core's entries.
+
+Evaluation: 32 seeded episodes; mean hand distance over the steps tracked, the fraction of
+targets reached (the hand within 0.1 m at some step while the target stood), the fraction of
+episodes without a fall, and the score (mean reward per step over 10 s).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..evaluation import EpisodeProtocol
+from ..features import self_obs, to_heading
+from ..humanoid.skeleton import BODY_NAMES
+from .base import check_range
+from .goal import GoalVecEnv, Schedule, check_interval
+
+HAND = BODY_NAMES.index("R_Hand")
+REACHED = 0.1  # m: a target counts as reached when the hand comes this close (evaluation)
+REACH_LAYOUT = (("target_pos", 3, "target position relative to the pelvis (m)"),)
+
+
+def reach_reward(hand_pos, target):
+    """(reward (N,), hand distance (N,)) for hand and target positions (N, 3)."""
+    d = hand_pos - target
+    sq = (d * d).sum(-1)
+    return np.exp(-4.0 * sq), np.sqrt(sq)
+
+
+def reach_episode_metrics(log: dict) -> dict:
+    index, dist = log["target_index"], log["hand_distance"]
+    reached = [dist[index == k].min() < REACHED for k in np.unique(index)]
+    return {"hand_distance": float(dist.mean()), "targets_reached": float(np.mean(reached)),
+            "targets": len(reached)}
+
+
+class ReachVecEnv(GoalVecEnv):
+    """`gym.make_vec("SMPL/Reach-v0", num_envs=N, **kwargs)`.
+
+    kwargs: target_range_xy ((-1, 1) m), target_range_z ((0.2, 2.0) m), resample_interval
+    ((50, 99) steps), and GoalVecEnv's (fall_height, head_height, motions, start, ...).
+    """
+
+    task_layout = {"task": REACH_LAYOUT}
+    evaluation = EpisodeProtocol(("hand_distance", "target_index"), reach_episode_metrics)
+
+    def __init__(self, num_envs: int = 1, *, target_range_xy=(-1.0, 1.0), target_range_z=(0.2, 2.0),
+                 resample_interval=(50, 99), **kwargs):
+        self.target_range_xy = check_range("target_range_xy", target_range_xy, -10.0, 10.0)
+        self.target_range_z = check_range("target_range_z", target_range_z, 0.0, 3.0)
+        interval = check_interval("resample_interval", resample_interval)
+        super().__init__(num_envs, **kwargs)
+        n = self.num_envs
+        self.target = np.zeros((n, 3))          # world frame
+        self.target_index = np.zeros(n, np.int64)
+        self.schedule = Schedule(n, interval)
+
+    def _resample(self, ids: np.ndarray, qpos: np.ndarray) -> None:
+        """New targets for worlds `ids` around the pose in their rows of full-model `qpos`."""
+        rng = self.np_random
+        root, heading = self.root_pose(qpos)
+        local = np.stack([rng.uniform(*self.target_range_xy, len(ids)), rng.uniform(*self.target_range_xy, len(ids)),
+                          np.zeros(len(ids))], -1)
+        self.target[ids] = root + (heading @ local[..., None])[..., 0]
+        self.target[ids, 2] = rng.uniform(*self.target_range_z, len(ids))
+        self.schedule.reset(ids, self.elapsed, rng)
+
+    def _reset_task(self, ids, options):
+        qpos, qvel = super()._reset_task(ids, options)
+        self.target_index[ids] = 0
+        self._resample(ids, qpos)
+        return qpos, qvel
+
+    def _advance(self, active):
+        due = self.schedule.due(self.elapsed, active)
+        if len(due):
+            self.target_index[due] += 1
+            self._resample(due, self.sim.qpos[due])
+
+    def _evaluate(self, body, heading):
+        reward, _ = reach_reward(body.pos[:, HAND], self.target)
+        return reward, {"reach": reward}, self._fallen(body), np.zeros(self.num_envs, bool)
+
+    def _observe(self, body, heading):
+        rel = to_heading((self.target - body.pos[:, 0])[:, None], heading)[:, 0]
+        return np.concatenate([self_obs(body, heading), rel], -1)
+
+    def _task_info(self, body):
+        return {"hand_distance": reach_reward(body.pos[:, HAND], self.target)[1], "target_pos": self.target.copy(),
+                "target_index": self.target_index.copy()}
+
+    def _markers(self, world):
+        return [(self.target[world], (0.95, 0.75, 0.1, 0.9), 0.05)]

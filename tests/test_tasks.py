@@ -1,0 +1,281 @@
+"""Every registered task on the task-agnostic core: Gymnasium contracts, the goal tasks' rewards
+with known answers, their schedules, falls, bad input, and an outside client (SB3)."""
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import smpl_envs
+from smpl_envs.envs.base import fallen
+from smpl_envs.envs.reach import HAND, reach_reward
+from smpl_envs.envs.speed import speed_reward
+from smpl_envs.envs.strike import STRIKERS, strike_reward
+from smpl_envs.features import heading_rotation
+from smpl_envs.humanoid import BODY_NAMES
+
+OBS_DIM = {"SMPL/Imitation-v0": 934, "SMPL/KeypointImitation-v0": 574, "SMPL/Speed-v0": 361,
+           "SMPL/Reach-v0": 361, "SMPL/Strike-v0": 373}
+GOAL_IDS = ["SMPL/Speed-v0", "SMPL/Reach-v0", "SMPL/Strike-v0"]
+
+
+def test_every_id_is_registered_with_both_entry_points():
+    assert set(OBS_DIM) == set(smpl_envs.ENV_IDS)
+    for env_id in OBS_DIM:
+        spec = gym.spec(env_id)
+        assert spec.entry_point is not None and spec.vector_entry_point is not None
+    for env_id in GOAL_IDS:
+        assert gym.spec(env_id).max_episode_steps == 300
+
+
+@pytest.mark.parametrize("env_id", GOAL_IDS)
+def test_env_checker_passes(env_id):
+    env = gym.make(env_id, motions="walk", render_mode="rgb_array", render_size=(96, 72))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*(infinity|too low|too high).*")
+        check_env(env.unwrapped)
+    assert env.observation_space.shape == (OBS_DIM[env_id],) and env.action_space.shape == (69,)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", GOAL_IDS)
+def test_make_vec_is_native_batched_and_seeded(env_id):
+    def rollout(env, seed):
+        out = [env.reset(seed=seed)[0]]
+        rng = np.random.default_rng(0)
+        for _ in range(25):
+            obs, rew, term, trunc, info = env.step(rng.uniform(-0.3, 0.3, (8, 69)))
+            out += [obs, rew, term, trunc]
+        return out, info
+
+    env = gym.make_vec(env_id, num_envs=8, motions=["walk", "run"])
+    assert env.sim.num_worlds == 8 and env.metadata["autoreset_mode"] == gym.vector.AutoresetMode.NEXT_STEP
+    a, info = rollout(env, 3)
+    b, _ = rollout(env, 3)
+    c, _ = rollout(env, 4)
+    assert a[0].shape == (8, OBS_DIM[env_id]) and a[0].dtype == np.float32
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert not np.array_equal(a[0], c[0])
+    assert info["amp_obs"].shape == (8, 232) and "motion_id" in info and "motion_time" in info
+    terms = [k for k in info if k.startswith("reward_")]
+    assert terms and np.allclose(a[-3], sum(info[k] for k in terms))
+    s = env.observation_structure
+    assert max(v.stop for v in s.values()) == OBS_DIM[env_id]
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", GOAL_IDS)
+def test_runs_without_clips_from_the_rest_pose(env_id):
+    env = gym.make_vec(env_id, num_envs=2)
+    obs, info = env.reset(seed=0)
+    assert env.motion_lib is None and "motion_id" not in info
+    assert 0.85 < obs[0, 0] < 1.0  # standing pelvis height
+    for _ in range(30):  # the rest pose stands at zero action
+        obs, rew, term, trunc, info = env.step(np.zeros((2, 69)))
+        assert not term.any()
+    env.close()
+
+
+# ---------------------------------------------------------------------------------------- speed
+def test_speed_reward_known_answers():
+    d = np.array([[1.0, 0.0], [0.0, 1.0]])
+    v = np.array([[2.0, 0.0, 0.0], [0.0, 3.0, 0.5]])
+    r, err = speed_reward(v, d, np.array([2.0, 3.0]))
+    np.testing.assert_allclose(r, 1.0) and np.testing.assert_allclose(err, 0.0, atol=1e-12)
+    r, err = speed_reward(np.array([[0.0, 1.0, 0.0]]), d[:1], np.array([1.0]))  # sideways at 1 m/s
+    np.testing.assert_allclose(r, np.exp(-0.25 * (1.0 + 0.1)))
+    np.testing.assert_allclose(err, 1.0)
+
+
+def test_moving_at_the_target_speed_scores_one():
+    env = gym.make_vec("SMPL/Speed-v0", num_envs=3)
+    env.reset(seed=0)
+    qpos, qvel = env.sim.qpos.copy(), np.zeros_like(env.sim.qvel)
+    qvel[:, :2] = env.target_dir * env.target_speed[:, None]  # the pelvis glides at the target velocity
+    env.sim.set_state(np.arange(3), qpos, qvel)
+    body = env.sim.bodies
+    reward, terms, term, trunc = env._evaluate(body, heading_rotation(body.rot[:, 0]))
+    np.testing.assert_allclose(reward, 1.0, atol=1e-9)
+    np.testing.assert_allclose(env._task_info(body)["speed_error"], 0.0, atol=1e-9)
+    env.close()
+
+
+def test_speed_target_resamples_on_schedule():
+    env = gym.make_vec("SMPL/Speed-v0", num_envs=2, resample_interval=(5, 5))
+    _, info = env.reset(seed=0)
+    dirs = [info["target_dir"].copy()]
+    for _ in range(12):
+        dirs.append(env.step(np.zeros((2, 69)))[4]["target_dir"].copy())
+    changed = [t for t in range(1, 13) if not np.array_equal(dirs[t], dirs[t - 1])]
+    assert changed == [5, 10]
+    # The observation carries the target in the heading frame (a unit vector) and the speed.
+    obs = env.step(np.zeros((2, 69)))[0]
+    np.testing.assert_allclose(np.linalg.norm(obs[:, 358:360], axis=-1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(obs[:, 360], env.target_speed, atol=1e-5)
+    env.close()
+
+
+# ---------------------------------------------------------------------------------------- reach
+def test_hand_on_the_target_scores_one():
+    np.testing.assert_allclose(reach_reward(np.ones((1, 3)), np.ones((1, 3)))[0], 1.0)
+    np.testing.assert_allclose(reach_reward(np.zeros((1, 3)), np.array([[0.5, 0, 0]]))[0], np.exp(-1.0))
+    env = gym.make_vec("SMPL/Reach-v0", num_envs=2, motions="walk")
+    env.reset(seed=0)
+    body = env.sim.bodies
+    env.target[:] = body.pos[:, HAND]
+    reward, terms, _, _ = env._evaluate(body, heading_rotation(body.rot[:, 0]))
+    np.testing.assert_allclose(reward, 1.0) and np.testing.assert_allclose(terms["reach"], 1.0)
+    env.close()
+
+
+def test_reach_targets_lie_in_range_and_resample_on_schedule():
+    env = gym.make_vec("SMPL/Reach-v0", num_envs=16, resample_interval=(3, 3))
+    obs, info = env.reset(seed=0)
+    for t in range(1, 7):
+        obs, *_, info = env.step(np.zeros((16, 69)))
+        assert (info["target_index"] == t // 3).all()
+        rel = obs[:, 358:361]  # target relative to the pelvis, heading frame
+        assert (np.abs(rel[:, :2]) <= 1.0 + 0.05).all()  # drawn within +-1 m, the pelvis moved little
+        assert ((info["target_pos"][:, 2] >= 0.2) & (info["target_pos"][:, 2] <= 2.0)).all()
+    env.close()
+
+
+# ---------------------------------------------------------------------------------------- strike
+def test_strike_reward_known_answers():
+    root, box = np.zeros((2, 3)), np.array([[2.0, 0, 0.9], [2.0, 0, 0.9]])
+    vel = np.array([[1.0, 0, 0], [-1.0, 0, 0]])  # towards the box at 1 m/s; away from it
+    r, terms = strike_reward(np.array([1.0, 1.0]), root, vel, box)
+    np.testing.assert_allclose(terms["approach"], [0.4, 0.0]) and np.testing.assert_allclose(terms["topple"], 0.0)
+    r, terms = strike_reward(np.array([0.1, 0.5]), root, vel, box)
+    np.testing.assert_allclose(r, [1.0, 0.6 * 0.5])  # toppled: 1; half way: the tilt term only
+
+
+def test_box_pushed_over_scores_one():
+    env = gym.make_vec("SMPL/Strike-v0", num_envs=1, box_distance=(3.0, 3.0), autoreset_mode="Disabled")
+    env.reset(seed=0)
+    qpos, qvel = env.sim.qpos.copy(), env.sim.qvel.copy()
+    away = qpos[0, env.box_qpos][:2] / np.linalg.norm(qpos[0, env.box_qpos][:2])
+    # A scripted push of the box (not of the humanoid): spin it about the horizontal axis
+    # across the line to the humanoid, so it falls away from it.
+    qvel[0, env.box_qvel.start + 3:env.box_qvel.start + 6] = 3.0 * np.array([-away[1], away[0], 0.0])
+    env.sim.set_state([0], qpos, qvel)
+    for _ in range(60):
+        _, reward, term, trunc, info = env.step(np.zeros((1, 69)))
+        assert not term[0]
+        if info["toppled"][0]:
+            break
+    assert info["toppled"][0] and reward[0] == pytest.approx(1.0)
+    result = smpl_envs.evaluate(lambda obs: np.zeros((len(obs), 69)), "SMPL/Strike-v0", episodes=2, num_envs=2,
+                                progress=False)
+    assert result.summary["toppled"] == 0.0  # nobody pushes the box in the evaluation
+    env.close()
+
+
+def test_a_torso_touching_the_box_ends_the_episode_and_the_hand_does_not():
+    env = gym.make_vec("SMPL/Strike-v0", num_envs=4, box_distance=(0.2, 0.2))  # box against the body
+    env.reset(seed=0)
+    _, _, term, _, info = env.step(np.zeros((4, 69)))
+    touching = info["touching"]
+    assert touching.any(-1).all() and term.all()
+    assert touching[:, [i for i in range(24) if i not in STRIKERS]].any(-1).all()
+    env.close()
+
+
+# ---------------------------------------------------------------------------------------- episodes
+def test_a_fall_ends_the_episode():
+    body = type("B", (), {})()
+    pos = np.zeros((3, 24, 3))
+    pos[..., 2] = 1.0
+    pos[1, BODY_NAMES.index("L_Hand"), 2] = 0.1   # a hand on the floor
+    pos[2, BODY_NAMES.index("L_Toe"), 2] = 0.0    # feet may touch it
+    body.pos = pos
+    assert fallen(body).tolist() == [False, True, False]
+    env = gym.make_vec("SMPL/Speed-v0", num_envs=2, autoreset_mode="Disabled")
+    env.reset(seed=0)
+    qpos = env.sim.qpos.copy()
+    qpos[1, 2] = 0.12                       # world 1 lies on its back
+    qpos[1, 3:7] = [np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0]
+    env.sim.set_state([0, 1], qpos, np.zeros_like(env.sim.qvel))
+    _, _, term, trunc, _ = env.step(np.zeros((2, 69)))
+    assert term.tolist() == [False, True] and not trunc.any()
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", GOAL_IDS)
+def test_episode_evaluation_runs_the_protocol(env_id):
+    zero = lambda obs: np.zeros((len(obs), 69))  # noqa: E731
+    result = smpl_envs.evaluate(zero, env_id, episodes=3, num_envs=2, progress=False)
+    assert len(result.rows) == 3 and result.summary["episodes"] == 3
+    assert all(r["length"] == 300 for r in result.rows)  # the rest pose stands for 10 s
+    assert result.summary["no_fall"] == 1.0 and 0.0 <= result.summary["score"] <= 1.0
+    assert "episodes" in result.table()
+    with pytest.raises(ValueError, match="threshold"):
+        smpl_envs.evaluate(zero, env_id, threshold=0.5, progress=False)
+
+
+# ---------------------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize("env_id, kwargs, match", [
+    ("SMPL/Speed-v0", dict(speed_range=(3.0, 1.0)), "speed_range"),
+    ("SMPL/Speed-v0", dict(speed_range=(-1.0, 1.0)), "speed_range"),
+    ("SMPL/Speed-v0", dict(resample_interval=(-5, 10)), "resample_interval"),
+    ("SMPL/Reach-v0", dict(target_range_z=(2.0, 0.2)), "target_range_z"),
+    ("SMPL/Reach-v0", dict(resample_interval=(10, 5)), "resample_interval"),
+    ("SMPL/Strike-v0", dict(box_distance=(1.5, 500.0)), "box_distance"),
+    ("SMPL/Strike-v0", dict(box_size=(0.4, -1, 1.8)), "box_size"),
+    ("SMPL/Speed-v0", dict(substeps=0), "substeps"),
+    ("SMPL/Speed-v0", dict(fall_height=-1), "fall_height"),
+    ("SMPL/Imitation-v0", dict(termination_distance=-1), "termination_distance"),
+    ("SMPL/Imitation-v0", dict(action_mode="torque"), "action_mode"),
+])
+def test_bad_kwargs_name_themselves(env_id, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        gym.make_vec(env_id, num_envs=1, **kwargs)
+
+
+@pytest.mark.parametrize("env_id", GOAL_IDS)
+def test_unknown_kwarg_names_itself(env_id):
+    with pytest.raises(TypeError, match="no_such_option"):
+        gym.make(env_id, no_such_option=1)
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_nan_action_ends_only_that_world(mode):
+    env = gym.make_vec("SMPL/Speed-v0", num_envs=3, autoreset_mode=mode)
+    env.reset(seed=0)
+    actions = np.zeros((3, 69))
+    actions[1, 7] = np.nan
+    obs, rew, term, trunc, info = env.step(actions)
+    assert term.tolist() == [False, True, False] and info["diverged"].tolist() == [False, True, False]
+    assert rew[1] == 0.0 and np.isfinite(obs).all()
+    obs, rew, term, trunc, info = env.step(np.zeros((3, 69)))
+    assert not term.any() and not info["diverged"].any()
+    env.close()
+
+
+def test_reset_mask_must_be_a_boolean_mask_of_every_world():
+    env = gym.make_vec("SMPL/Reach-v0", num_envs=4, autoreset_mode="Disabled")
+    obs, _ = env.reset(seed=0)
+    for bad in ([0, 2], [True, False, True], [True] * 6):
+        with pytest.raises(ValueError, match="boolean mask of 4"):
+            env.reset(options={"reset_mask": bad})
+    obs2, info = env.reset(options={"reset_mask": np.isin(range(4), [0, 2])})
+    assert info["_reset"].tolist() == [True, False, True, False]
+    np.testing.assert_array_equal(obs2[[1, 3]], obs[[1, 3]])
+    env.close()
+
+
+# ---------------------------------------------------------------------------------------- clients
+@pytest.mark.parametrize("env_id", GOAL_IDS)
+def test_stable_baselines3_ppo_trains(env_id):
+    import stable_baselines3 as sb3
+
+    env = gym.make(env_id, motions=["walk", "run"], max_episode_steps=100)
+    model = sb3.PPO("MlpPolicy", env, n_steps=512, batch_size=128, n_epochs=1, seed=0, device="cpu",
+                    policy_kwargs=dict(net_arch=[64, 64]))
+    model.learn(total_timesteps=2048)
+    assert model.num_timesteps >= 2048
+    action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
+    assert action.shape == (69,) and np.isfinite(action).all()
+    env.close()

@@ -1,15 +1,17 @@
-"""Environment throughput against raw physics of the same model, measured side by side.
+"""Environment throughput against raw physics of the same model, measured side by side, per task.
 
-    python benchmarks/bench_env.py [--worlds 64] [--steps 300] [--repeats 5]
+    python benchmarks/bench_env.py [--ids SMPL/Speed-v0 ...] [--worlds 64] [--steps 300] [--repeats 5]
 
-Single env: `gym.make("SMPL/Imitation-v0")` driven by the reference-tracking action for `--steps`
-steps; then the same control sequence is replayed from the same initial state with bare
-`mj_step` calls on one MjData, so both do identical physics and the ratio is the environment's
-overhead (observations, reward, termination, AMP features, info).
+Single env: `gym.make(id)` driven for `--steps` steps by a fixed policy (imitation: the
+reference-tracking action from each clip's first frame, no early termination; goal tasks: the
+zero action, under which the rest pose stands); then the same control sequence is replayed from
+the same initial states with bare `mj_step` calls on one MjData of the same model (box included),
+so both do identical physics and the ratio is the environment's overhead (observations, reward,
+termination, AMP features, info).
 
-N worlds: `gym.make_vec(..., num_envs=N)` over the shipped clips, each world from a clip's first
-frame, against the single env's rate, and against raw physics replaying the same controls on N
-MjData stepped by the same thread pool. Figures are medians of `--repeats` runs.
+N worlds: `gym.make_vec(id, num_envs=N)` driven the same way (imitation: every world from a
+shipped clip's first frame), against raw physics replaying the same controls on N MjData stepped
+by the same thread pool, and against the single env's rate. Figures are medians of `--repeats`.
 """
 
 from __future__ import annotations
@@ -25,18 +27,34 @@ import numpy as np
 import smpl_envs  # noqa: F401  (registers the ids)
 from smpl_envs.motion import available_clips
 
+IMITATION = ("SMPL/Imitation-v0", "SMPL/KeypointImitation-v0")
 
-def single_env(steps: int) -> tuple[float, float]:
-    env = gym.make("SMPL/Imitation-v0", termination_distance=None, start="beginning", motions="walk")
+
+def _kwargs(env_id: str, single: bool) -> dict:
+    if env_id in IMITATION:
+        return dict(termination_distance=None, start="beginning", motions="walk" if single else available_clips())
+    return {}
+
+
+def _policy(vec):
+    # The reference-tracking action where the task has one, else standing still.
+    if hasattr(vec, "reference_action"):
+        return vec.reference_action
+    return lambda: np.zeros((vec.num_envs, 69))
+
+
+def single_env(env_id: str, steps: int) -> tuple[float, float]:
+    env = gym.make(env_id, **_kwargs(env_id, True))
     env.reset(seed=0)
     vec = env.unwrapped.vec
+    act = _policy(vec)
     m, d0 = vec.model, vec.sim.datas[0]
     episodes, current = [], None
     t_env = 0.0
     for _ in range(steps):
         if current is None:
             current = (d0.qpos.copy(), d0.qvel.copy(), [])
-        action = env.unwrapped.reference_action()
+        action = act()[0]
         t = time.perf_counter()
         _, _, term, trunc, _ = env.step(action)
         t_env += time.perf_counter() - t
@@ -65,21 +83,24 @@ def single_env(steps: int) -> tuple[float, float]:
     return steps / t_env, steps / t_raw
 
 
-def many_worlds(n: int, steps: int) -> tuple[float, float]:
-    # Every world starts at the first frame of a shipped clip and no episode ends within `steps`,
-    # so the raw replay below repeats exactly the env's physics.
-    env = gym.make_vec("SMPL/Imitation-v0", num_envs=n, termination_distance=None, start="beginning",
-                       motions=available_clips())
+def many_worlds(env_id: str, n: int, steps: int) -> tuple[float, float]:
+    # No episode ends within `steps`, so the raw replay below repeats exactly the env's physics.
+    env = gym.make_vec(env_id, num_envs=n, **_kwargs(env_id, False))
     env.reset(seed=0)
     sim, m = env.sim, env.model
-    steps = min(steps, int(env.motion_lib.lengths.min()) - 1)
+    if env.motion_lib is not None and env_id in IMITATION:
+        steps = min(steps, int(env.motion_lib.lengths.min()) - 1)
+    if env.max_episode_steps is not None:
+        steps = min(steps, env.max_episode_steps - 1)
     start = [(d.qpos.copy(), d.qvel.copy()) for d in sim.datas]
-    actions = [env.reference_action() for _ in range(steps)]  # drawn up front: not part of the timing
+    act = _policy(env)
+    actions = [act() for _ in range(steps)]  # drawn up front: not part of the timing
+    ctrls = []
     t = time.perf_counter()
     for a in actions:
         env.step(a)
+        ctrls.append(sim.ctrl.copy())  # what the env applied (a microsecond against ~10 ms a step)
     rate = n * steps / (time.perf_counter() - t)
-    ctrls = [np.clip(a, -1, 1) * env.action_scale for a in actions]
 
     for d, (qpos, qvel) in zip(sim.datas, start):
         mujoco.mj_resetData(m, d)
@@ -105,20 +126,23 @@ def many_worlds(n: int, steps: int) -> tuple[float, float]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--ids", nargs="+", default=list(smpl_envs.ENV_IDS), help="task ids (default: all)")
     p.add_argument("--worlds", type=int, default=64)
     p.add_argument("--steps", type=int, default=300)
     p.add_argument("--repeats", type=int, default=5)
     args = p.parse_args()
     print(f"{os.cpu_count()} CPU cores, MuJoCo {mujoco.__version__}, {args.repeats} repeats (medians)")
-    singles = np.array([single_env(args.steps) for _ in range(args.repeats)])
-    env1, raw1 = np.median(singles, 0)
-    ratio1 = np.median(singles[:, 0] / singles[:, 1])
-    print(f"single env   : {env1:8.0f} steps/s   raw physics {raw1:8.0f} steps/s   ratio {ratio1:.2f}")
-    multi = np.array([many_worlds(args.worlds, args.steps) for _ in range(args.repeats)])
-    envn, rawn = np.median(multi, 0)
-    print(f"{args.worlds:3d} worlds    : {envn:8.0f} steps/s   raw physics {rawn:8.0f} steps/s   "
-          f"ratio {np.median(multi[:, 0] / multi[:, 1]):.2f}")
-    print(f"{args.worlds} worlds vs single env: {envn / env1:.2f}x")
+    print(f"| id | single env steps/s | raw physics | ratio | {args.worlds} worlds steps/s | raw physics | ratio "
+          f"| {args.worlds} worlds / single |")
+    print("|---|---|---|---|---|---|---|---|")
+    for env_id in args.ids:
+        singles = np.array([single_env(env_id, args.steps) for _ in range(args.repeats)])
+        multi = np.array([many_worlds(env_id, args.worlds, args.steps) for _ in range(args.repeats)])
+        env1, raw1 = np.median(singles, 0)
+        envn, rawn = np.median(multi, 0)
+        print(f"| `{env_id}` | {env1:.0f} | {raw1:.0f} | {np.median(singles[:, 0] / singles[:, 1]):.2f} "
+              f"| {envn:.0f} | {rawn:.0f} | {np.median(multi[:, 0] / multi[:, 1]):.2f} | {envn / env1:.2f}x |",
+              flush=True)
 
 
 if __name__ == "__main__":

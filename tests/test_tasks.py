@@ -279,3 +279,12 @@ def test_stable_baselines3_ppo_trains(env_id):
     action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
     assert action.shape == (69,) and np.isfinite(action).all()
     env.close()
+
+
+@pytest.mark.parametrize("env_id", ["SMPL/Imitation-v0", "SMPL/Speed-v0"])
+def test_cache_kwarg_reaches_the_motion_library(env_id, tmp_path, monkeypatch):
+    monkeypatch.setenv("SMPL_ENVS_CACHE", str(tmp_path / "cache"))
+    gym.make_vec(env_id, num_envs=1, motions=["walk", "run"], cache=False).close()
+    assert not (tmp_path / "cache").exists()
+    gym.make_vec(env_id, num_envs=1, motions=["walk", "run"]).close()
+    assert (tmp_path / "cache").exists()

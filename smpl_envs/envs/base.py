@@ -57,14 +57,9 @@ FEET = np.array([i for i, n in enumerate(BODY_NAMES) if n.endswith(("Ankle", "To
 def load_motions(motions: str | os.PathLike | list | MotionLib, progress: bool = False,
                  cache: bool = True) -> MotionLib:
     """A MotionLib from what a user passes as `motions=`: a shipped clip name, a motion file, a
-    directory tree, a saved (cached) library, a list of those, or a MotionLib."""
-    if isinstance(motions, MotionLib):
-        lib = motions
-    else:
-        try:
-            lib = MotionLib.load(motions, progress=progress, cache=cache)
-        except TypeError:  # a MotionLib.load without the cache switch
-            lib = MotionLib.load(motions, progress=progress)
+    directory tree, a saved (cached) library, a list of those, or a MotionLib. `cache`: the
+    MotionLib's disk cache (True, a directory, or False for none)."""
+    lib = motions if isinstance(motions, MotionLib) else MotionLib.load(motions, progress=progress, cache=cache)
     short = [lib.names[i] for i in np.flatnonzero(lib.lengths < 2)]
     if short:
         raise ValueError(f"motions: clips need at least 2 frames; too short: {short[:5]}"

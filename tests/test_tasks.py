@@ -294,3 +294,13 @@ def test_cache_kwarg_reaches_the_motion_library(env_id, tmp_path, monkeypatch):
     assert not (tmp_path / "cache").exists()
     gym.make_vec(env_id, num_envs=1, motions=str(tree)).close()
     assert any((tmp_path / "cache").iterdir())
+
+
+def test_beginning_share_starts_that_fraction_at_the_first_frame():
+    env = gym.make_vec("SMPL/Imitation-v0", num_envs=400, motions="walk", beginning_share=0.5, num_threads=1)
+    _, info = env.reset(seed=0)
+    share = (info["motion_time"] == 0).mean()
+    assert 0.4 < share < 0.6  # 0.5, plus the random starts that land on frame 0 (1 in 180)
+    env.close()
+    with pytest.raises(ValueError, match="beginning_share"):
+        gym.make_vec("SMPL/Speed-v0", num_envs=1, beginning_share=1.5)

@@ -108,7 +108,8 @@ class HumanoidVecEnv(VectorEnv):
     """N simulated SMPL humanoids stepped together; a task subclass supplies what they do.
 
     Core kwargs (every task): motions (clips for start poses, references or style; None: the rest
-    pose), start ("random" frame or "beginning" of a clip), cache (the MotionLib's disk cache),
+    pose), start ("random" frame or "beginning" of a clip), beginning_share (the fraction of
+    random starts moved to a clip's first frame), cache (the MotionLib's disk cache),
     max_episode_steps, autoreset_mode, substeps, num_threads, render_mode, render_size,
     render_world, show_markers.
     """
@@ -125,6 +126,7 @@ class HumanoidVecEnv(VectorEnv):
         *,
         motions: str | os.PathLike | list | MotionLib | None = None,
         start: str = "random",
+        beginning_share: float = 0.0,
         cache: bool = True,
         max_episode_steps: int | None = None,
         autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
@@ -138,6 +140,9 @@ class HumanoidVecEnv(VectorEnv):
         self.num_envs = _positive_int("num_envs", num_envs)
         if start not in STARTS:
             raise ValueError(f"start must be one of {STARTS}, got {start!r}")
+        if not 0.0 <= float(beginning_share) <= 1.0:
+            raise ValueError(f"beginning_share must be a fraction in [0, 1], got {beginning_share!r}")
+        self.beginning_share = float(beginning_share)
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         if not 0 <= int(render_world) < self.num_envs:
@@ -223,6 +228,10 @@ class HumanoidVecEnv(VectorEnv):
             raise ValueError(f"motion_ids must be {n} indices in [0, {lib.num_motions})")
         local = ((rng.random(n) * (lib.lengths[motion_ids] - 1)).astype(np.int64) if start == "random"
                  else np.zeros(n, np.int64))
+        if start == "random" and self.beginning_share > 0:
+            # A share of the random starts goes to the clip's first frame, so the clip's start,
+            # which random starts rarely train on, is learnt too (AMP's "stand still" trap).
+            local[rng.random(n) < self.beginning_share] = 0
         self.start_motion[ids] = motion_ids
         self.start_frame[ids] = lib.starts[motion_ids] + local
         hq, hv = lib.qpos_qvel(self.start_frame[ids])

@@ -5,16 +5,22 @@
     model.save("walk.pt")
     model = agents.load("walk.pt")          # any agent class, from its checkpoint
     action, _ = model.predict(obs, deterministic=True)
+
+The pieces, for agents built on this machinery: settings dataclasses (`PPOConfig`,
+`AMPConfig`), the policy (`networks.Policy`, `networks.ActorCritic`), and rollouts apart from the
+update (`rollout.RolloutBuffer`, `rollout.RolloutCollector`, `rollout.RolloutHooks`).
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from .amp import AMP
+from .amp import AMP, AMPConfig
 from .callbacks import Callback, CallbackList, CheckpointCallback, EvalCallback
 from .checkpoint import load_checkpoint
 from .logger import Logger
-from .ppo import PPO
+from .networks import ActorCritic, Policy
+from .ppo import PPO, PPOConfig
+from .rollout import RolloutBuffer, RolloutCollector, RolloutHooks
 
 AGENTS = {"PPO": PPO, "AMP": AMP}
 
@@ -28,4 +34,5 @@ def load(path: str | Path, env=None, **kwargs):
 
 
 __all__ = ["PPO", "AMP", "AGENTS", "load", "Callback", "CallbackList", "CheckpointCallback", "EvalCallback",
-           "Logger"]
+           "Logger", "PPOConfig", "AMPConfig", "Policy", "ActorCritic", "RolloutBuffer", "RolloutCollector",
+           "RolloutHooks"]

@@ -5,10 +5,23 @@ height and rotation, root velocities, joint rotations and velocities, hands and 
 score windows cut from the reference motion ("demo") high and windows the policy produced low. The
 policy is paid -log(max(1 - sigmoid(D), 1e-4)) x `style_reward_scale` for looking like the demo.
 
-The env must report the frame of every step in `info["amp_obs"]` and expose the `motion_lib` it
-samples its reference from: every SMPL suite env does.
+What AMP takes from the env is only what the env core documents for every SMPL suite env:
+
+- `env.motion_lib`, the clips of the task (the references of an imitation task, the style clips
+  of a goal task made with `motions=`, e.g. `gym.make_vec("SMPL/Speed-v0", motions=["walk",
+  "run"])`): demo windows are cut from it;
+- `info["amp_obs"]`, the AMP feature frame of every world, at reset and after every step;
+- `info["motion_id"]`, `info["motion_time"]` at reset: the clip frame each world started from,
+  whose past seeds that world's window history.
+
+An env without them gets a clear error. Where the AMP-specific parts sit: `StyleWindows` (the
+rollout hooks that turn each step's frames into windows stored in the rollout buffer),
+`_shape_rewards` (the mixed reward) and `_update_extra` (D's update).
 """
 from __future__ import annotations
+
+import dataclasses
+from typing import Callable
 
 import numpy as np
 import torch
@@ -18,12 +31,47 @@ from torch.nn import functional as F
 
 from .networks import mlp
 from .normalizer import RunningNorm
-from .ppo import PPO
-from .vec import final_info_array
+from .ppo import PPO, PPOConfig
+from .rollout import RolloutBuffer, RolloutHooks, minibatches
+from .vec import autoreset_mode, final_info_array
 
 
 # Above this many library frames (~460 MB of features) demo windows are computed per minibatch.
 DEMO_TABLE_MAX_FRAMES = 500_000
+WINDOWS = "amp_windows"  # the rollout buffer's field of policy windows, (n_steps, n_envs, frames * 232)
+
+
+@dataclasses.dataclass
+class AMPConfig(PPOConfig):
+    """AMP's hyperparameters: every PPO one, and the style reward's and discriminator's."""
+
+    task_reward_weight: float = 0.5
+    """reward = task_reward_weight r_task + style_reward_weight r_style (PHC: 0.5 / 0.5)"""
+    style_reward_weight: float = 0.5
+    """weight of the style reward (0 / 1 with the task weight for pure style)"""
+    style_reward_scale: float = 2.0
+    """multiplies -log(max(1 - sigmoid(D), 1e-4))"""
+    amp_num_frames: int = 10
+    """frames per discriminator window"""
+    disc_hidden: list[int] = dataclasses.field(default_factory=lambda: [1024, 512])
+    """discriminator MLP hidden sizes (PHC: [1024, 512])"""
+    disc_activation: str = "relu"
+    """discriminator hidden activation (PHC: ReLU)"""
+    disc_learning_rate: float = 1e-4
+    """Adam step size of the discriminator"""
+    disc_grad_penalty: float = 5.0
+    """weight of the gradient penalty on demo windows"""
+    disc_logit_reg: float = 0.01
+    """weight of the squared logit-layer weights"""
+    disc_weight_decay: float = 1e-4
+    """weight of all squared discriminator weights"""
+    disc_epochs: int | None = None
+    """passes over each rollout's windows per update (None: n_epochs)"""
+    replay_size: int = 50_000
+    """policy windows kept for D to revisit (the anchors use 200k; CPU memory is smaller: 50k
+    windows of 10 frames are ~460 MB)"""
+    replay_keep_prob: float = 0.01
+    """chance that a rollout's window enters the replay buffer once it is full"""
 
 
 class Discriminator(nn.Module):
@@ -75,67 +123,83 @@ class ReplayBuffer:
         return self.data[torch.randint(self.n, (k,), device=self.device)]
 
 
+class StyleWindows(RolloutHooks):
+    """Rollout hooks that keep each world's last `num_frames` AMP frames and write the window of
+    every step into the rollout buffer's `WINDOWS` field.
+
+    reference_windows(motion_ids, times) -> (N, num_frames * frame_dim): the demo windows ending
+    at those clip times; a world that (re)starts an episode starts on a reference frame, so its
+    history is the reference's past.
+    """
+
+    def __init__(self, reference_windows: Callable[[np.ndarray, np.ndarray], np.ndarray], num_frames: int,
+                 frame_dim: int, autoreset: AutoresetMode, device: torch.device):
+        self.reference_windows = reference_windows
+        self.num_frames, self.frame_dim = num_frames, frame_dim
+        self.autoreset, self.device = autoreset, device
+        self.history: np.ndarray | None = None  # (n_envs, num_frames, frame_dim)
+        self.windows: torch.Tensor | None = None  # the buffer's field being filled
+
+    def _restart(self, info: dict, ids: np.ndarray) -> np.ndarray:
+        return self.reference_windows(info["motion_id"][ids], info["motion_time"][ids]).reshape(
+            len(ids), self.num_frames, self.frame_dim)
+
+    def on_reset(self, info: dict) -> None:
+        _require_amp_obs(info)
+        self.history = self._restart(info, np.arange(len(info["amp_obs"])))
+
+    def on_rollout_start(self, buffer: RolloutBuffer) -> None:
+        self.windows = buffer.extra(WINDOWS, self.num_frames * self.frame_dim)
+
+    def on_step(self, t: int, info: dict, done: np.ndarray, valid: np.ndarray) -> None:
+        _require_amp_obs(info)
+        frame = final_info_array(info, "amp_obs", done, self.autoreset)
+        h = self.history
+        h[valid] = np.concatenate([h[valid, 1:], frame[valid, None]], axis=1)
+        self.windows[t] = torch.as_tensor(h.reshape(len(h), -1), device=self.device)
+        # Worlds that start a new episode now: NextStep resets on the step after `done` (the
+        # invalid ones), SameStep within the `done` step; both report the new episode's state.
+        fresh = ~valid if self.autoreset == AutoresetMode.NEXT_STEP else done
+        if fresh.any():
+            ids = np.flatnonzero(fresh)
+            h[ids] = self._restart(info, ids)
+
+
+def _require_amp_obs(info: dict) -> None:
+    if "amp_obs" not in info:
+        raise ValueError("AMP needs info['amp_obs'] from the env's reset and step; this env does not report it")
+
+
 class AMP(PPO):
     """PPO + adversarial motion prior (REFERENCE.md section 6).
 
-    Args (besides every PPO argument):
-        task_reward_weight, style_reward_weight: reward = w_task r_task + w_style r_style
-            (0.5 / 0.5 as PHC; 0 / 1 for pure style).
-        style_reward_scale: multiplies -log(max(1 - sigmoid(D), 1e-4)) (2).
-        amp_num_frames: frames per discriminator window (10).
-        disc_hidden, disc_activation: discriminator MLP (PHC: [1024, 512], ReLU).
-        disc_learning_rate: Adam step size of the discriminator.
-        disc_grad_penalty: weight of the gradient penalty on demo windows (5).
-        disc_logit_reg: weight of the squared logit-layer weights (0.01).
-        disc_weight_decay: weight of all squared discriminator weights (1e-4).
-        disc_epochs: passes over each rollout's windows per update (default: n_epochs).
-        replay_size, replay_keep_prob: policy-window replay buffer (200k / 0.01 in the anchors;
-            the default here is smaller because CPU memory is: 50k windows are ~460 MB).
+    Takes every PPO argument; its hyperparameters are the fields of `AMPConfig` (PPO's and the
+    style reward's and discriminator's). The env must offer what the module docstring lists.
     """
 
-    def __init__(self, env, *, task_reward_weight: float = 0.5, style_reward_weight: float = 0.5,
-                 style_reward_scale: float = 2.0, amp_num_frames: int = 10,
-                 disc_hidden=(1024, 512), disc_activation: str = "relu", disc_learning_rate: float = 1e-4,
-                 disc_grad_penalty: float = 5.0, disc_logit_reg: float = 0.01, disc_weight_decay: float = 1e-4,
-                 disc_epochs: int | None = None, replay_size: int = 50_000, replay_keep_prob: float = 0.01,
-                 **ppo_kwargs):
-        amp_hp = dict(
-            task_reward_weight=float(task_reward_weight), style_reward_weight=float(style_reward_weight),
-            style_reward_scale=float(style_reward_scale), amp_num_frames=int(amp_num_frames),
-            disc_hidden=[int(h) for h in disc_hidden], disc_activation=disc_activation,
-            disc_learning_rate=float(disc_learning_rate), disc_grad_penalty=float(disc_grad_penalty),
-            disc_logit_reg=float(disc_logit_reg), disc_weight_decay=float(disc_weight_decay),
-            disc_epochs=None if disc_epochs is None else int(disc_epochs), replay_size=int(replay_size),
-            replay_keep_prob=float(replay_keep_prob),
-        )
-        self._amp_hp = amp_hp
-        super().__init__(env, **ppo_kwargs)
-        self.hyperparams.update(amp_hp)
-        for k, v in amp_hp.items():
-            setattr(self, k, v)
+    config_class = AMPConfig
 
     # ------------------------------------------------------------------ setup
-    def _build(self, obs_dim, action_space) -> None:
-        super()._build(obs_dim, action_space)
-        hp = self._amp_hp
+    def _build(self, obs_dim, action_space, policy=None) -> None:
+        super()._build(obs_dim, action_space, policy)
+        cfg = self.config
         from smpl_envs.features import AMP_LAYOUT, layout_size
 
         self.frame_dim = layout_size(AMP_LAYOUT)
-        self.disc = Discriminator(self.frame_dim, hp["amp_num_frames"], hp["disc_hidden"],
-                                  hp["disc_activation"]).to(self.device)
-        self.disc_optimizer = torch.optim.Adam(self.disc.net.parameters(), lr=hp["disc_learning_rate"])
-        self.replay = ReplayBuffer(hp["replay_size"], self.frame_dim * hp["amp_num_frames"], self.device)
+        self.disc = Discriminator(self.frame_dim, cfg.amp_num_frames, cfg.disc_hidden,
+                                  cfg.disc_activation).to(self.device)
+        self.disc_optimizer = torch.optim.Adam(self.disc.net.parameters(), lr=cfg.disc_learning_rate)
+        self.replay = ReplayBuffer(cfg.replay_size, self.frame_dim * cfg.amp_num_frames, self.device)
 
     def set_env(self, env, n_envs: int = 1, env_kwargs: dict | None = None) -> None:
         super().set_env(env, n_envs, env_kwargs)
-        self.motion_lib = _find_motion_lib(self.env)
-        if self.motion_lib is None:
-            raise ValueError(
-                "AMP needs an env that exposes the `motion_lib` of its reference motion and reports "
-                "info['amp_obs'] every step (every SMPL/ env does); this one does not: "
-                f"{getattr(self.env, 'spec', None) or self.env}")
-        self._demo_rng = np.random.default_rng(self.seed)
+        self.motion_lib = reference_motion(self.env)
+        self._demo_rng = np.random.default_rng(self.config.seed)
         self._frame_table = self._build_frame_table()
+
+    def _rollout_hooks(self) -> StyleWindows:
+        return StyleWindows(self._reference_windows, self.config.amp_num_frames, self.frame_dim,
+                            autoreset_mode(self.env), self.device)
 
     # ------------------------------------------------------------------ windows of AMP frames
     def _build_frame_table(self) -> np.ndarray | None:
@@ -155,10 +219,11 @@ class AMP(PPO):
     def _reference_windows(self, motion_ids, times) -> np.ndarray:
         """(N, amp_num_frames * 232) windows of the reference ending at `times` of `motion_ids`."""
         lib, ids = self.motion_lib, np.asarray(motion_ids)
+        k = self.config.amp_num_frames
         if self._frame_table is None:
-            return lib.amp_features(ids, np.asarray(times), self.amp_num_frames).reshape(len(ids), -1)
+            return lib.amp_features(ids, np.asarray(times), k).reshape(len(ids), -1)
         last = np.rint(np.asarray(times) * lib.fps).astype(np.int64)
-        local = np.clip(last[:, None] + np.arange(1 - self.amp_num_frames, 1), 0, lib.lengths[ids, None] - 1)
+        local = np.clip(last[:, None] + np.arange(1 - k, 1), 0, lib.lengths[ids, None] - 1)
         return self._frame_table[lib.starts[ids, None] + local].reshape(len(ids), -1)
 
     def _sample_demo(self, n: int) -> torch.Tensor:
@@ -167,67 +232,41 @@ class AMP(PPO):
         times = self._demo_rng.integers(0, lib.lengths[ids]) / lib.fps  # exact frames, as the env steps
         return torch.as_tensor(self._reference_windows(ids, times), device=self.device)
 
-    def _require_amp_obs(self, info: dict) -> None:
-        if "amp_obs" not in info:
-            raise ValueError("AMP needs info['amp_obs'] from the env's reset and step; this env does not report it")
-
-    def _on_reset(self, info: dict) -> None:
-        self._require_amp_obs(info)
-        # A reset world starts on a reference frame, so its history is the reference's past.
-        self._history = self._reference_windows(info["motion_id"], info["motion_time"]).reshape(
-            -1, self.amp_num_frames, self.frame_dim)
-
-    def _on_rollout_start(self, n_steps: int, n_envs: int) -> None:
-        self._windows = torch.zeros(n_steps, n_envs, self.amp_num_frames * self.frame_dim, device=self.device)
-
-    def _on_step(self, t: int, info: dict, done: np.ndarray, valid: np.ndarray) -> None:
-        self._require_amp_obs(info)
-        frame = final_info_array(info, "amp_obs", done, self.autoreset)
-        h = self._history
-        h[valid] = np.concatenate([h[valid, 1:], frame[valid, None]], axis=1)
-        self._windows[t] = torch.as_tensor(h.reshape(len(h), -1), device=self.device)
-        # Worlds that start a new episode now: NextStep resets on the step after `done` (the
-        # invalid ones), SameStep within the `done` step; both report the new episode's state.
-        fresh = ~valid if self.autoreset == AutoresetMode.NEXT_STEP else done
-        if fresh.any():
-            ids = np.flatnonzero(fresh)
-            h[ids] = self._reference_windows(info["motion_id"][ids], info["motion_time"][ids]).reshape(
-                len(ids), self.amp_num_frames, self.frame_dim)
-
     # ------------------------------------------------------------------ rewards and D's update
     @torch.no_grad()
     def style_reward(self, windows: torch.Tensor) -> torch.Tensor:
         """-log(max(1 - sigmoid(D(w)), 1e-4)) x style_reward_scale for (B, frames * 232) windows."""
         prob = torch.sigmoid(self.disc(windows))
-        return -torch.log((1.0 - prob).clamp(min=1e-4)) * self.style_reward_scale
+        return -torch.log((1.0 - prob).clamp(min=1e-4)) * self.config.style_reward_scale
 
-    def _shape_rewards(self, buf: dict) -> torch.Tensor:
-        T, N = buf["reward"].shape
-        style = self.style_reward(self._windows.reshape(T * N, -1)).reshape(T, N) * buf["valid"]
-        valid = buf["valid"].bool()
+    def _shape_rewards(self, buf: RolloutBuffer) -> torch.Tensor:
+        cfg = self.config
+        T, N = buf.rewards.shape
+        style = self.style_reward(buf.extras[WINDOWS].reshape(T * N, -1)).reshape(T, N) * buf.valid
+        valid = buf.valid.bool()
         if valid.any():
             self.logger.record("amp/style_reward_mean", style[valid].mean().item())
-            self.logger.record("amp/task_reward_mean", buf["reward"][valid].mean().item())
-        return self.task_reward_weight * buf["reward"] + self.style_reward_weight * style
+            self.logger.record("amp/task_reward_mean", buf.rewards[valid].mean().item())
+        return cfg.task_reward_weight * buf.rewards + cfg.style_reward_weight * style
 
-    def _update_extra(self, buf: dict) -> None:
-        agent = self._windows.reshape(-1, self._windows.shape[-1])[buf["valid"].reshape(-1).bool()]
+    def _update_extra(self, buf: RolloutBuffer) -> None:
+        cfg = self.config
+        windows = buf.extras[WINDOWS]
+        agent = windows.reshape(-1, windows.shape[-1])[buf.valid_mask()]
         n = len(agent)
         if n == 0:
             return
-        mb = min(self.batch_size, n)
         stats: dict[str, list[float]] = {k: [] for k in ("loss", "bce", "grad_penalty", "agent_acc", "demo_acc")}
-        for _ in range(self.disc_epochs or self.n_epochs):
-            perm = torch.randperm(n, device=self.device)
-            for start in range(0, n - mb + 1, mb):
-                fake = agent[perm[start:start + mb]]
+        for _ in range(cfg.disc_epochs or cfg.n_epochs):
+            for mb in minibatches({"fake": agent}, cfg.batch_size):
+                fake, size = mb["fake"], len(mb["fake"])
                 if self.replay.n > 0:  # half the negatives from older policies
-                    fake = torch.cat([fake[: mb - mb // 2], self.replay.sample(mb // 2)])
-                real = self._sample_demo(mb)
+                    fake = torch.cat([fake[: size - size // 2], self.replay.sample(size // 2)])
+                real = self._sample_demo(size)
                 self.disc.norm.update(real.reshape(-1, self.frame_dim))
                 for k, v in self._disc_step(real, fake).items():
                     stats[k].append(v)
-        keep = torch.rand(n, device=self.device) < self.replay_keep_prob
+        keep = torch.rand(n, device=self.device) < cfg.replay_keep_prob
         self.replay.add(agent[keep] if self.replay.n > 0 else agent[: self.replay.size])
         for k, v in stats.items():
             if v:
@@ -244,11 +283,12 @@ class AMP(PPO):
         grad_penalty = grad.square().sum(-1).mean()
         logit_reg = self.disc.logit_layer.weight.square().sum()
         weight_decay = sum(p.square().sum() for n, p in self.disc.net.named_parameters() if n.endswith("weight"))
-        loss = (bce + self.disc_grad_penalty * grad_penalty + self.disc_logit_reg * logit_reg
-                + self.disc_weight_decay * weight_decay)
+        cfg = self.config
+        loss = (bce + cfg.disc_grad_penalty * grad_penalty + cfg.disc_logit_reg * logit_reg
+                + cfg.disc_weight_decay * weight_decay)
         self.disc_optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        nn.utils.clip_grad_norm_(self.disc.net.parameters(), self.max_grad_norm)
+        nn.utils.clip_grad_norm_(self.disc.net.parameters(), cfg.max_grad_norm)
         self.disc_optimizer.step()
         with torch.no_grad():
             return {"loss": loss.item(), "bce": bce.item(), "grad_penalty": grad_penalty.item(),
@@ -271,14 +311,19 @@ class AMP(PPO):
         self.disc_optimizer.load_state_dict(state["disc_optimizer"])
 
 
-
-def _find_motion_lib(vec):
-    """The MotionLib behind a suite vector env, or behind the first env of a Sync/Async vector."""
-    for candidate in (vec, getattr(vec, "unwrapped", None)):
+def reference_motion(env):
+    """The `motion_lib` a suite env documents (the clips of its task), reached through the
+    standard Gymnasium ways of holding an env: the vector env itself (`gym.make_vec`), the env
+    under its vector wrappers (`.unwrapped`), or the first env of a `SyncVectorEnv` of
+    `gym.make` envs (`envs[0].unwrapped.motion_lib`). A ValueError when there is none."""
+    candidates = [env, getattr(env, "unwrapped", None)]
+    if getattr(env, "envs", None):
+        candidates.append(env.envs[0].unwrapped)
+    for candidate in candidates:
         lib = getattr(candidate, "motion_lib", None)
         if lib is not None:
             return lib
-    envs = getattr(vec, "envs", None)
-    if envs:
-        return getattr(envs[0].unwrapped, "motion_lib", None)
-    return None
+    raise ValueError(
+        "AMP needs the reference motion the env documents as `env.motion_lib` (every SMPL/ env made with "
+        "clips has one: imitation tasks always, goal tasks with motions=[...] for their style) and "
+        f"info['amp_obs'] every step; this env has no motion_lib: {getattr(env, 'spec', None) or env}")

@@ -1,16 +1,21 @@
 """Proximal Policy Optimisation with the options PHC's recipe relies on.
 
-Read top to bottom: the constructor wires an env and an actor-critic together, `learn` alternates
-`_collect` (a rollout of `n_steps` per world) and `_update` (`n_epochs` of clipped-surrogate
-minibatch steps). Everything PHC tunes is a constructor argument: fixed or learned action std,
-running observation normalisation (stored in the checkpoint), GAE, value normalisation, bounds loss
-on the action mean, gradient clipping, separate actor and critic MLPs.
+Read top to bottom: `PPOConfig` lists every setting with its default; the constructor wires an
+env, a policy (`networks.ActorCritic` unless one is passed in) and a rollout buffer together;
+`learn` alternates `_collect` (a `rollout.RolloutCollector` fills the `RolloutBuffer` with
+`n_steps` per world, then GAE) and `_update` (`n_epochs` of clipped-surrogate minibatch steps).
+Everything PHC tunes is a setting: fixed or learned action std, running observation
+normalisation (stored in the checkpoint), GAE, value normalisation, bounds loss on the action
+mean, gradient clipping, separate actor and critic MLPs.
 
-Subclasses (AMP) hook in through `_on_step`, `_shape_rewards`, `_update_extra` and
-`_extra_state` without touching the loop.
+Subclasses (AMP) extend it without touching the loop: `config_class` (their settings dataclass),
+`_build` (their networks), `_rollout_hooks` (a `rollout.RolloutHooks` the collector calls at reset
+and every step), `_shape_rewards` (before GAE), `_update_extra` (after the policy's update), and
+`_extra_state` / `_load_extra_state` (checkpointed state).
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 from collections import deque
@@ -20,14 +25,75 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch
-from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector import VectorEnv
 from tqdm.auto import tqdm
 
 from .callbacks import as_callback
 from .checkpoint import load_checkpoint, save_checkpoint
+from .config import AgentConfig
 from .logger import Logger
-from .networks import ActorCritic
-from .vec import autoreset_mode, final_observations, make_vec_env, reward_terms
+from .networks import ActorCritic, Policy
+from .rollout import RolloutBuffer, RolloutCollector, RolloutHooks
+from .vec import make_vec_env
+
+
+@dataclasses.dataclass
+class PPOConfig(AgentConfig):
+    """PPO's hyperparameters: keyword arguments of `PPO(...)`, stored in checkpoints."""
+
+    n_steps: int = 64
+    """rollout length per world (PHC: 32)"""
+    batch_size: int = 1024
+    """minibatch size in transitions (PHC: 16384)"""
+    n_epochs: int = 5
+    """passes over each rollout (PHC: 6)"""
+    learning_rate: float = 3e-4
+    """Adam step size"""
+    lr_schedule: str = "constant"
+    """"constant", or "linear" decay to zero at the end of `learn`'s budget"""
+    gamma: float = 0.99
+    """discount (PHC: 0.99)"""
+    gae_lambda: float = 0.95
+    """GAE parameter (PHC: 0.95)"""
+    clip_range: float = 0.2
+    """PPO ratio clip"""
+    clip_range_vf: float | None = None
+    """optional clip of the value update around the old value, in the critic's (normalised) units"""
+    ent_coef: float = 0.0
+    """entropy bonus weight (PHC: 0)"""
+    vf_coef: float = 1.0
+    """value-loss weight (PHC: 5)"""
+    bounds_loss_coef: float = 0.0
+    """penalty on action means beyond +-1.1 (PHC: 10)"""
+    max_grad_norm: float = 1.0
+    """global gradient-norm clip (PHC: 50)"""
+    target_kl: float | None = None
+    """stop an update's epochs early once the approximate KL exceeds 1.5x this"""
+    normalize_obs: bool = True
+    """running observation normalisation"""
+    obs_clip: float | None = 10.0
+    """normalised observations are clipped to +-obs_clip"""
+    normalize_value: bool = True
+    """the critic predicts returns normalised by running statistics"""
+    normalize_advantage: bool = True
+    """per-minibatch advantage standardisation"""
+    actor_hidden: list[int] = dataclasses.field(default_factory=lambda: [256, 256])
+    """actor MLP hidden sizes (PHC: [1024, 512])"""
+    critic_hidden: list[int] = dataclasses.field(default_factory=lambda: [256, 256])
+    """critic MLP hidden sizes (PHC: [1024, 512])"""
+    activation: str = "silu"
+    """hidden activation of both MLPs: relu, elu, silu, tanh or gelu (PHC: SiLU)"""
+    log_std_init: float = -1.0
+    """initial log action std, in the policy's [-1, 1] units (PHC fixes it at -2.9)"""
+    learn_std: bool = True
+    """learn the action std (False: fixed at log_std_init)"""
+    seed: int | None = None
+    """seeds torch (network initialisation, sampling) and the env's first reset"""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.lr_schedule not in ("constant", "linear"):
+            raise ValueError(f"lr_schedule must be 'constant' or 'linear', got {self.lr_schedule!r}")
 
 
 def resolve_device(device: str | torch.device) -> torch.device:
@@ -42,78 +108,23 @@ class PPO:
     Args:
         env: an env id (made with `n_envs` worlds and `env_kwargs`; suite ids use their native
             batched env), a `gymnasium.Env`, a `gymnasium.vector.VectorEnv`, or None to act only.
-        n_steps: rollout length per world (PHC: 32).
-        batch_size: minibatch size in transitions (PHC: 16384).
-        n_epochs: passes over each rollout (PHC: 6).
-        learning_rate, lr_schedule: Adam step size, "constant" or "linear" decay to zero.
-        gamma, gae_lambda: discount and GAE parameter (PHC: 0.99, 0.95).
-        clip_range: PPO ratio clip (0.2). clip_range_vf: optional value clip, normalised units.
-        ent_coef, vf_coef: entropy bonus and value-loss weight (PHC: 0, 5).
-        bounds_loss_coef: penalty on action means beyond +-1.1 (PHC: 10).
-        max_grad_norm: global gradient-norm clip (PHC: 50).
-        target_kl: stop an update's epochs early once the approximate KL exceeds 1.5x this.
-        normalize_obs, obs_clip: running observation normalisation, clipped to +-obs_clip.
-        normalize_value: critic predicts returns normalised by running statistics.
-        normalize_advantage: per-minibatch advantage standardisation.
-        actor_hidden, critic_hidden, activation: the two MLPs (PHC: [1024, 512], SiLU).
-        log_std_init, learn_std: action std; PHC fixes log std at -2.9.
-        seed: seeds torch and the env's first reset.
+        policy: a `networks.Policy` to train (its obs/act sizes must match the env); default: an
+            `ActorCritic` built from the hyperparameters. `load` rebuilds an `ActorCritic` unless
+            handed the same kind of policy again.
         device: "auto", "cpu", "cuda", ...
         verbose: 1 prints a table per log, 0 is silent.
-        log_dir: where progress.csv and TensorBoard files go (None: stdout only).
+        log_dir, tensorboard: where progress.csv and TensorBoard files go (None: stdout only).
+        **hyperparams: the fields of `PPOConfig` (`config_class`), each with its default and
+            meaning there. They are readable (and writable) as attributes too:
+            `model.learning_rate` is `model.config.learning_rate`.
     """
 
-    def __init__(
-        self,
-        env: str | gym.Env | VectorEnv | None,
-        *,
-        n_envs: int = 1,
-        env_kwargs: dict | None = None,
-        n_steps: int = 64,
-        batch_size: int = 1024,
-        n_epochs: int = 5,
-        learning_rate: float = 3e-4,
-        lr_schedule: str = "constant",
-        gamma: float = 0.99,
-        gae_lambda: float = 0.95,
-        clip_range: float = 0.2,
-        clip_range_vf: float | None = None,
-        ent_coef: float = 0.0,
-        vf_coef: float = 1.0,
-        bounds_loss_coef: float = 0.0,
-        max_grad_norm: float = 1.0,
-        target_kl: float | None = None,
-        normalize_obs: bool = True,
-        obs_clip: float | None = 10.0,
-        normalize_value: bool = True,
-        normalize_advantage: bool = True,
-        actor_hidden: tuple[int, ...] | list[int] = (256, 256),
-        critic_hidden: tuple[int, ...] | list[int] = (256, 256),
-        activation: str = "silu",
-        log_std_init: float = -1.0,
-        learn_std: bool = True,
-        seed: int | None = None,
-        device: str | torch.device = "auto",
-        verbose: int = 1,
-        log_dir: str | Path | None = None,
-        tensorboard: bool = True,
-    ):
-        if lr_schedule not in ("constant", "linear"):
-            raise ValueError(f"lr_schedule must be 'constant' or 'linear', got {lr_schedule!r}")
-        self.hyperparams = dict(
-            n_steps=int(n_steps), batch_size=int(batch_size), n_epochs=int(n_epochs),
-            learning_rate=float(learning_rate), lr_schedule=lr_schedule, gamma=float(gamma),
-            gae_lambda=float(gae_lambda), clip_range=float(clip_range),
-            clip_range_vf=None if clip_range_vf is None else float(clip_range_vf),
-            ent_coef=float(ent_coef), vf_coef=float(vf_coef), bounds_loss_coef=float(bounds_loss_coef),
-            max_grad_norm=float(max_grad_norm), target_kl=None if target_kl is None else float(target_kl),
-            normalize_obs=bool(normalize_obs), obs_clip=None if obs_clip is None else float(obs_clip),
-            normalize_value=bool(normalize_value), normalize_advantage=bool(normalize_advantage),
-            actor_hidden=[int(h) for h in actor_hidden], critic_hidden=[int(h) for h in critic_hidden],
-            activation=activation, log_std_init=float(log_std_init), learn_std=bool(learn_std), seed=seed,
-        )
-        for k, v in self.hyperparams.items():
-            setattr(self, k, v)
+    config_class: type[AgentConfig] = PPOConfig
+
+    def __init__(self, env: str | gym.Env | VectorEnv | None, *, n_envs: int = 1, env_kwargs: dict | None = None,
+                 policy: Policy | None = None, device: str | torch.device = "auto", verbose: int = 1,
+                 log_dir: str | Path | None = None, tensorboard: bool = True, **hyperparams):
+        self.config = self.config_class.from_kwargs(type(self).__name__, hyperparams)
         self.device = resolve_device(device)
         self.verbose = verbose
         self.env = self.env_id = None
@@ -121,29 +132,57 @@ class PPO:
         self.num_timesteps = 0
         self.iteration = 0
         self.episodes: deque = deque(maxlen=100)  # (return, length) of the latest episodes
-        self._last_obs = None
-        if seed is not None:
-            torch.manual_seed(seed)
+        self._collector: RolloutCollector | None = None  # made on the first rollout
+        self.rollout_buffer: RolloutBuffer | None = None
+        if self.config.seed is not None:
+            torch.manual_seed(self.config.seed)
         if env is not None:
             self.set_env(env, n_envs=n_envs, env_kwargs=env_kwargs)
-            self._build(self.env.single_observation_space.shape[0], self.env.single_action_space)
+            self._build(self.env.single_observation_space.shape[0], self.env.single_action_space, policy)
+        elif policy is not None:
+            raise ValueError("policy= needs an env (its action bounds); to act only, use PPO.load(path, policy=...)")
         self.set_logger(log_dir, tensorboard)
 
+    @property
+    def hyperparams(self) -> dict[str, Any]:
+        """The settings as a plain dict (what checkpoints store)."""
+        return self.config.to_dict()
+
+    def __getattr__(self, name: str):
+        # Only reached when normal lookup fails: hyperparameters read through to the config.
+        config = self.__dict__.get("config")
+        if config is not None and name in config.names():
+            return getattr(config, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def __setattr__(self, name: str, value) -> None:
+        # `model.learning_rate = x` changes the setting training reads, not a shadow copy.
+        config = self.__dict__.get("config")
+        if config is not None and name in config.names():
+            setattr(config, name, value)
+        else:
+            super().__setattr__(name, value)
+
     # ------------------------------------------------------------------ setup
-    def _build(self, obs_dim: int, action_space: gym.spaces.Box) -> None:
-        h = self.hyperparams
+    def _build(self, obs_dim: int, action_space: gym.spaces.Box, policy: Policy | None = None) -> None:
+        cfg = self.config
         self.obs_dim, self.act_dim = int(obs_dim), int(action_space.shape[0])
         low, high = action_space.low.astype(np.float64), action_space.high.astype(np.float64)
         if not (np.isfinite(low).all() and np.isfinite(high).all()):
             raise ValueError("the agents need a bounded Box action space (finite low and high)")
         self.action_low, self.action_high = low, high
-        self.policy = ActorCritic(
-            self.obs_dim, self.act_dim, actor_hidden=h["actor_hidden"], critic_hidden=h["critic_hidden"],
-            activation=h["activation"], log_std_init=h["log_std_init"], learn_std=h["learn_std"],
-            obs_clip=h["obs_clip"], normalize_obs=h["normalize_obs"], normalize_value=h["normalize_value"],
-        ).to(self.device)
+        if policy is None:
+            policy = ActorCritic(
+                self.obs_dim, self.act_dim, actor_hidden=cfg.actor_hidden, critic_hidden=cfg.critic_hidden,
+                activation=cfg.activation, log_std_init=cfg.log_std_init, learn_std=cfg.learn_std,
+                obs_clip=cfg.obs_clip, normalize_obs=cfg.normalize_obs, normalize_value=cfg.normalize_value)
+        elif (policy.obs_dim, policy.act_dim) != (self.obs_dim, self.act_dim):
+            raise ValueError(f"the policy is for obs {policy.obs_dim} / action {policy.act_dim} features, "
+                             f"the env has {self.obs_dim} / {self.act_dim}")
+        self.policy = policy.to(self.device)
         params = [p for p in self.policy.parameters() if p.requires_grad]
-        self.optimizer = torch.optim.Adam(params, lr=h["learning_rate"], eps=1e-5)
+        self.optimizer = torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
+        self._collector = None
 
     def set_env(self, env, n_envs: int = 1, env_kwargs: dict | None = None) -> None:
         """Attach an env to train on; its spaces must match the policy's."""
@@ -159,8 +198,7 @@ class PPO:
         else:
             spec = getattr(vec, "spec", None) or getattr(env, "spec", None)
             self.env_id = spec.id if spec is not None else None
-        self.autoreset = autoreset_mode(vec)
-        self._last_obs = None
+        self._collector = None  # the next rollout starts with a reset of this env
 
     def set_logger(self, log_dir: str | Path | None = None, tensorboard: bool = True) -> None:
         self.logger = Logger(log_dir, stdout=self.verbose > 0, tensorboard=tensorboard)
@@ -207,12 +245,8 @@ class PPO:
             self.episodes.clear()
         target = self.num_timesteps + int(total_timesteps)
         callback = as_callback(callback)
-        if self._last_obs is None:
-            self._last_obs, info = self.env.reset(seed=self.seed if reset_num_timesteps else None)
-            self._on_reset(info)
-            n = self.env.num_envs
-            self._prev_done = np.zeros(n, bool)
-            self._ep_return, self._ep_length = np.zeros(n), np.zeros(n, np.int64)
+        if self._collector is None:
+            self._start_collector(seed=self.config.seed if reset_num_timesteps else None)
         callback.on_training_start(self)
         bar = tqdm(total=target, initial=self.num_timesteps, disable=not progress_bar, unit="step",
                    dynamic_ncols=True, desc=type(self).__name__)
@@ -220,8 +254,8 @@ class PPO:
         try:
             while self.num_timesteps < target:
                 self._set_learning_rate(target)
-                rollout = self._collect()
-                self._update(rollout)
+                buffer = self._collect()
+                self._update(buffer)
                 self.iteration += 1
                 bar.update(self.num_timesteps - bar.n)
                 if self.episodes:
@@ -241,144 +275,91 @@ class PPO:
         callback.on_training_end(self)
         return self
 
+    def _start_collector(self, seed: int | None) -> None:
+        """A collector on the attached env, which it resets (with `seed`)."""
+        self._collector = RolloutCollector(self.env, self.policy, self._to_env_action, self.config.gamma,
+                                           self.episodes, self._rollout_hooks(), self.device)
+        self._collector.reset(seed=seed)
+
     def _set_learning_rate(self, target: int) -> None:
-        lr = self.learning_rate
-        if self.lr_schedule == "linear":
+        lr = self.config.learning_rate
+        if self.config.lr_schedule == "linear":
             lr *= max(1.0 - self.num_timesteps / max(target, 1), 0.0)
         for g in self.optimizer.param_groups:
             g["lr"] = lr
         self.logger.record("train/learning_rate", lr)
 
     @torch.no_grad()
-    def _collect(self) -> dict[str, torch.Tensor]:
-        env, pol, dev = self.env, self.policy, self.device
-        T, N = self.n_steps, env.num_envs
-        buf = {k: torch.zeros(T, N, device=dev) for k in ("logp", "value", "reward", "done", "valid", "bootstrap")}
-        buf["obs"] = torch.zeros(T, N, self.obs_dim, device=dev)
-        buf["action"] = torch.zeros(T, N, self.act_dim, device=dev)
-        terms_sum: dict[str, float] = {}
-        self._on_rollout_start(T, N)
-        for t in range(T):
-            # NextStep autoreset: the step after an episode's end only resets; it is no transition.
-            valid = ~self._prev_done
-            obs = torch.as_tensor(self._last_obs, dtype=torch.float32, device=dev)
-            if self.normalize_obs:
-                pol.obs_norm.update(obs[torch.as_tensor(valid, device=dev)])
-            nobs = pol.normalize(obs)
-            dist = pol.dist(nobs)
-            action = dist.sample()
-            buf["obs"][t], buf["action"][t] = nobs, action
-            buf["logp"][t] = dist.log_prob(action).sum(-1)
-            buf["value"][t] = pol.value(nobs)
+    def _collect(self) -> RolloutBuffer:
+        """One rollout of `n_steps` per world into the buffer; rewards shaped, advantages computed."""
+        cfg = self.config
+        if self._collector is None:
+            self._start_collector(seed=cfg.seed)
+        n_envs = self.env.num_envs
+        buf = self.rollout_buffer
+        if buf is None or not buf.matches(cfg.n_steps, n_envs, self.obs_dim, self.act_dim):
+            buf = self.rollout_buffer = RolloutBuffer(cfg.n_steps, n_envs, self.obs_dim, self.act_dim, self.device)
+        last_value, reward_terms = self._collector.collect(buf)
+        self.num_timesteps += cfg.n_steps * n_envs
+        buf.rewards.copy_(self._shape_rewards(buf))
+        buf.compute_advantages(last_value, cfg.gamma, cfg.gae_lambda)
 
-            next_obs, reward, terminated, truncated, info = env.step(self._to_env_action(action))
-            terminated, truncated = np.asarray(terminated, bool), np.asarray(truncated, bool)
-            done = terminated | truncated
-            reward = np.where(valid, np.asarray(reward, np.float64), 0.0)
-            # A time limit is not a failure: fold the value of where the episode stopped into the reward.
-            cut = truncated & ~terminated & valid
-            if cut.any():
-                final = final_observations(next_obs, info, done, self.autoreset)[cut]
-                v = pol.value(pol.normalize(torch.as_tensor(final, dtype=torch.float32, device=dev)))
-                buf["bootstrap"][t, torch.as_tensor(cut, device=dev)] = self.gamma * v
-            buf["reward"][t] = torch.as_tensor(reward, dtype=torch.float32, device=dev)
-            buf["done"][t] = torch.as_tensor(done, dtype=torch.float32, device=dev)
-            buf["valid"][t] = torch.as_tensor(valid, dtype=torch.float32, device=dev)
-            self._on_step(t, info, done, valid)
-            for k, v in reward_terms(info, valid).items():
-                terms_sum[k] = terms_sum.get(k, 0.0) + v
-
-            self._ep_return += reward
-            self._ep_length += valid
-            for i in np.flatnonzero(done & valid):
-                self.episodes.append((self._ep_return[i], self._ep_length[i]))
-            self._ep_return[done] = 0.0
-            self._ep_length[done] = 0
-            self._prev_done = done if self.autoreset == AutoresetMode.NEXT_STEP else np.zeros(N, bool)
-            self._last_obs = next_obs
-            self.num_timesteps += N
-            if not np.isfinite(next_obs).all():
-                raise FloatingPointError("the env returned a non-finite observation; the simulation diverged "
-                                         "without ending its episode")
-
-        last_value = pol.value(pol.normalize(torch.as_tensor(self._last_obs, dtype=torch.float32, device=dev)))
-        buf["reward"] = self._shape_rewards(buf)
-        buf["advantage"], buf["return"] = self._gae(buf, last_value)
-        v = buf["valid"].bool()
-        self.logger.record("rollout/step_reward_mean", buf["reward"][v].mean().item() if v.any() else 0.0)
-        for k, s in terms_sum.items():
-            self.logger.record(f"rollout/reward_{k}", s / T)
+        v = buf.valid.bool()
+        self.logger.record("rollout/step_reward_mean", buf.rewards[v].mean().item() if v.any() else 0.0)
+        for k, mean in reward_terms.items():
+            self.logger.record(f"rollout/reward_{k}", mean)
         if self.episodes:
             ret, length = np.mean(self.episodes, axis=0)
             self.logger.record("rollout/ep_rew_mean", ret)
             self.logger.record("rollout/ep_len_mean", length)
         return buf
 
-    def _gae(self, buf: dict, last_value: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        adv = torch.zeros_like(buf["reward"])
-        running = torch.zeros_like(last_value)
-        for t in reversed(range(self.n_steps)):
-            next_value = last_value if t == self.n_steps - 1 else buf["value"][t + 1]
-            live = 1.0 - buf["done"][t]
-            delta = buf["reward"][t] + buf["bootstrap"][t] + self.gamma * next_value * live - buf["value"][t]
-            running = delta + self.gamma * self.gae_lambda * live * running
-            adv[t] = running
-        return adv, adv + buf["value"]
-
-    def _update(self, buf: dict) -> None:
-        pol = self.policy
-        keep = buf["valid"].reshape(-1).bool()
-        b = {k: v.reshape(-1, *v.shape[2:])[keep] for k, v in buf.items() if k != "valid"}
-        n = len(b["obs"])
-        if self.normalize_value:
-            pol.value_norm.update(b["return"])
+    def _update(self, buf: RolloutBuffer) -> None:
+        cfg, pol = self.config, self.policy
+        data = buf.transitions()
+        pol.update_value_stats(data["returns"])
         stats: dict[str, list[float]] = {k: [] for k in ("policy_loss", "value_loss", "entropy", "bounds_loss",
                                                          "approx_kl", "clip_fraction", "grad_norm")}
-        mb = min(self.batch_size, n)
         stop = False
-        for _ in range(self.n_epochs):
-            perm = torch.randperm(n, device=self.device)
-            for start in range(0, n - mb + 1, mb):
-                i = perm[start:start + mb]
-                dist = pol.dist(b["obs"][i])
-                logp = dist.log_prob(b["action"][i]).sum(-1)
-                log_ratio = logp - b["logp"][i]
+        for _ in range(cfg.n_epochs):
+            for mb in buf.minibatches(cfg.batch_size):
+                ev = pol.evaluate_actions(mb["obs"], mb["actions"])
+                log_ratio = ev.log_prob - mb["log_probs"]
                 ratio = log_ratio.exp()
-                adv = b["advantage"][i]
-                if self.normalize_advantage and len(i) > 1:
+                adv = mb["advantages"]
+                if cfg.normalize_advantage and len(adv) > 1:
                     adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-                policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - self.clip_range, 1 + self.clip_range)).mean()
+                policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)).mean()
 
-                v_pred = pol.critic(b["obs"][i]).squeeze(-1)  # in normalised units when normalize_value
-                v_target, v_old = b["return"][i], b["value"][i]
-                if self.normalize_value:
-                    v_target, v_old = pol.value_norm(v_target), pol.value_norm(v_old)
+                # The critic learns in its own units (normalised returns when normalize_value).
+                v_pred = ev.value
+                v_target, v_old = pol.value_targets(mb["returns"]), pol.value_targets(mb["values"])
                 value_loss = (v_pred - v_target).square()
-                if self.clip_range_vf is not None:
-                    v_clip = v_old + (v_pred - v_old).clamp(-self.clip_range_vf, self.clip_range_vf)
+                if cfg.clip_range_vf is not None:
+                    v_clip = v_old + (v_pred - v_old).clamp(-cfg.clip_range_vf, cfg.clip_range_vf)
                     value_loss = torch.max(value_loss, (v_clip - v_target).square())
                 value_loss = 0.5 * value_loss.mean()
 
-                entropy = dist.entropy().sum(-1).mean()
-                mu = dist.mean
+                entropy = ev.entropy.mean()
+                mu = ev.mean
                 bounds_loss = ((mu - 1.1).clamp(min=0).square() + (mu + 1.1).clamp(max=0).square()).sum(-1).mean()
-                loss = (policy_loss + self.vf_coef * value_loss - self.ent_coef * entropy
-                        + self.bounds_loss_coef * bounds_loss)
+                loss = (policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
+                        + cfg.bounds_loss_coef * bounds_loss)
 
                 self.optimizer.zero_grad(set_to_none=True)
                 loss.backward()
-                grad_norm = torch.nn.utils.clip_grad_norm_(pol.parameters(), self.max_grad_norm)
+                grad_norm = torch.nn.utils.clip_grad_norm_(pol.parameters(), cfg.max_grad_norm)
                 self.optimizer.step()
 
                 with torch.no_grad():
                     approx_kl = ((ratio - 1) - log_ratio).mean().item()
-                    clip_fraction = ((ratio - 1).abs() > self.clip_range).float().mean().item()
+                    clip_fraction = ((ratio - 1).abs() > cfg.clip_range).float().mean().item()
                 for k, v in (("policy_loss", policy_loss), ("value_loss", value_loss), ("entropy", entropy),
                              ("bounds_loss", bounds_loss), ("grad_norm", grad_norm)):
                     stats[k].append(float(v.detach()))
                 stats["approx_kl"].append(approx_kl)
                 stats["clip_fraction"].append(clip_fraction)
-                if self.target_kl is not None and approx_kl > 1.5 * self.target_kl:
+                if cfg.target_kl is not None and approx_kl > 1.5 * cfg.target_kl:
                     stop = True
                     break
             if stop:
@@ -386,27 +367,25 @@ class PPO:
         for k, v in stats.items():
             if v:
                 self.logger.record(f"train/{k}", float(np.mean(v)))
-        ret, val = b["return"], b["value"]
-        var = ret.var() if n > 1 else torch.tensor(0.0)
+        ret, val = data["returns"], data["values"]
+        var = ret.var() if len(ret) > 1 else torch.tensor(0.0)
         self.logger.record("train/explained_variance", float(1 - (ret - val).var() / var) if var > 0 else float("nan"))
-        self.logger.record("train/std", float(pol.log_std.detach().exp().mean()))
+        std = pol.action_std()
+        if std is not None:
+            self.logger.record("train/std", float(std.mean()))
         self._update_extra(buf)
 
     # ------------------------------------------------------------------ subclass hooks
-    def _on_reset(self, info: dict) -> None:
-        pass
+    def _rollout_hooks(self) -> RolloutHooks:
+        """What the collector calls at reset, rollout start and every step (nothing, for PPO)."""
+        return RolloutHooks()
 
-    def _on_rollout_start(self, n_steps: int, n_envs: int) -> None:
-        pass
+    def _shape_rewards(self, buf: RolloutBuffer) -> torch.Tensor:
+        """The (n_steps, n_envs) rewards GAE sees, from the env's (`buf.rewards`)."""
+        return buf.rewards
 
-    def _on_step(self, t: int, info: dict, done: np.ndarray, valid: np.ndarray) -> None:
-        pass
-
-    def _shape_rewards(self, buf: dict) -> torch.Tensor:
-        return buf["reward"]
-
-    def _update_extra(self, buf: dict) -> None:
-        pass
+    def _update_extra(self, buf: RolloutBuffer) -> None:
+        """Anything else to train on the rollout, after the policy's update."""
 
     def _extra_state(self) -> dict:
         return {}
@@ -442,12 +421,14 @@ class PPO:
 
     @classmethod
     def load(cls, path: str | Path, env=None, device: str | torch.device = "auto", *,
-             n_envs: int | None = None, env_kwargs: dict | None = None, verbose: int = 1,
-             log_dir: str | Path | None = None, tensorboard: bool = True, **overrides) -> "PPO":
+             n_envs: int | None = None, env_kwargs: dict | None = None, policy: Policy | None = None,
+             verbose: int = 1, log_dir: str | Path | None = None, tensorboard: bool = True,
+             **overrides) -> "PPO":
         """Rebuild an agent from `save`'s file. With `env` (an env, or "auto" to make the recorded
         env id with its recorded kwargs) it can continue training: call
         `learn(..., reset_num_timesteps=False)`. `overrides` replace saved hyperparameters
-        (learning rate, epochs ... not network sizes)."""
+        (learning rate, epochs ... not network sizes). `policy`: a fresh policy of the kind
+        that was saved, when it was not the default `ActorCritic`; the saved weights go into it."""
         device = resolve_device(device)
         ckpt = load_checkpoint(path, device)
         if ckpt["class"] != cls.__name__:
@@ -457,7 +438,7 @@ class PPO:
         agent = cls(None, device=device, verbose=verbose, **hp)
         sp = ckpt["spaces"]
         box = gym.spaces.Box(np.array(sp["action_low"], np.float32), np.array(sp["action_high"], np.float32))
-        agent._build(sp["obs_dim"], box)
+        agent._build(sp["obs_dim"], box, policy)
         agent.policy.load_state_dict(ckpt["policy"])
         agent.optimizer.load_state_dict(ckpt["optimizer"])
         agent.num_timesteps, agent.iteration = ckpt["num_timesteps"], ckpt["iteration"]

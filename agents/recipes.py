@@ -274,7 +274,14 @@ def _check_agent(agent: dict) -> None:
 
 
 def accepted_hyperparams(cls) -> set[str]:
-    """Keyword arguments of `cls`'s constructor, following `**kwargs` up to the base classes."""
+    """The hyperparameters `cls` takes: the fields of its settings dataclass (`cls.config_class`,
+    e.g. `PPOConfig`), or for a class without one the keyword arguments of its constructor,
+    following `**kwargs` up to the base classes."""
+    import dataclasses  # (kept local: this function is the only user)
+
+    config = getattr(cls, "config_class", None)
+    if config is not None:
+        return {f.name for f in dataclasses.fields(config)} - set(RESERVED_HYPERPARAMS)
     names: set[str] = set()
     for klass in cls.__mro__:
         init = klass.__dict__.get("__init__")

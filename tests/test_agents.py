@@ -6,7 +6,7 @@ import pytest
 import torch
 
 import agents
-from agents import AMP, PPO, CheckpointCallback
+from agents import AMP, PPO, ActorCritic, AMPConfig, CheckpointCallback, PPOConfig, RolloutBuffer
 from agents.checkpoint import save_checkpoint
 from agents.logger import Logger
 
@@ -50,20 +50,29 @@ def test_ppo_improves_on_pendulum_quickly():
 
 
 def test_gae_matches_hand_computation():
-    model = PPO("Pendulum-v1", n_steps=3, gamma=0.9, gae_lambda=0.5, **TINY)
-    buf = {
-        "reward": torch.tensor([[1.0], [2.0], [3.0]]),
-        "value": torch.tensor([[0.5], [1.0], [1.5]]),
-        "done": torch.tensor([[0.0], [1.0], [0.0]]),
-        "bootstrap": torch.tensor([[0.0], [0.9 * 4.0], [0.0]]),  # step 1 was cut by a time limit
-    }
-    adv, ret = model._gae(buf, torch.tensor([2.0]))
+    buf = RolloutBuffer(n_steps=3, n_envs=1, obs_dim=2, act_dim=1)
+    buf.rewards[:, 0] = torch.tensor([1.0, 2.0, 3.0])
+    buf.values[:, 0] = torch.tensor([0.5, 1.0, 1.5])
+    buf.dones[:, 0] = torch.tensor([0.0, 1.0, 0.0])
+    buf.bootstrap[:, 0] = torch.tensor([0.0, 0.9 * 4.0, 0.0])  # step 1 was cut by a time limit
+    buf.compute_advantages(torch.tensor([2.0]), gamma=0.9, gae_lambda=0.5)
     d2 = 3.0 + 0.9 * 2.0 - 1.5
     d1 = 2.0 + 0.9 * 4.0 - 1.0               # episode ends: no chaining into step 2
     d0 = 1.0 + 0.9 * 1.0 - 0.5
     expected = [d0 + 0.9 * 0.5 * d1, d1, d2]
-    np.testing.assert_allclose(adv[:, 0].numpy(), expected, rtol=1e-6)
-    np.testing.assert_allclose(ret.numpy(), adv.numpy() + buf["value"].numpy(), rtol=1e-6)
+    np.testing.assert_allclose(buf.advantages[:, 0].numpy(), expected, rtol=1e-6)
+    np.testing.assert_allclose(buf.returns.numpy(), buf.advantages.numpy() + buf.values.numpy(), rtol=1e-6)
+
+
+def test_minibatches_cover_valid_transitions_once_per_epoch():
+    buf = RolloutBuffer(n_steps=4, n_envs=3, obs_dim=2, act_dim=1)
+    buf.obs[..., 0] = torch.arange(12.0).reshape(4, 3)
+    buf.valid.fill_(1.0)
+    buf.valid[1, 2] = buf.valid[3, 0] = 0.0  # NextStep's reset-only steps are no transitions
+    buf.compute_advantages(torch.zeros(3), 0.99, 0.95)
+    seen = [mb["obs"][:, 0] for mb in buf.minibatches(5)]
+    assert [len(x) for x in seen] == [5, 5]  # 10 valid, in two full minibatches
+    assert sorted(torch.cat(seen).tolist()) == [0, 1, 2, 3, 4, 6, 7, 8, 10, 11]
 
 
 def test_save_load_gives_identical_deterministic_actions(tmp_path):
@@ -193,8 +202,8 @@ def test_amp_discriminator_separates_reference_from_random_policy():
                 disc_learning_rate=1e-3, replay_size=2000, **TINY)
     real = model._sample_demo(256)
     model.learn(8 * 32 * 4, progress_bar=False)
-    model._collect()  # a fresh rollout D has not trained on
-    fake = model._windows.reshape(-1, model._windows.shape[-1])
+    windows = model._collect().extras["amp_windows"]  # a fresh rollout D has not trained on
+    fake = windows.reshape(-1, windows.shape[-1])
     assert model.discriminator_accuracy(real, fake) > 0.95
     # The style reward pays reference-like windows more.
     assert model.style_reward(real).mean() > 2 * model.style_reward(fake).mean()
@@ -241,3 +250,76 @@ def test_amp_demo_windows_from_frame_table_match_the_motion_library(monkeypatch)
     monkeypatch.setattr(amp_module, "DEMO_TABLE_MAX_FRAMES", 10)
     model.set_env("SMPL/Imitation-v0", env_kwargs=dict(motions="walk"))
     assert model._frame_table is None  # large libraries fall back to computing windows
+
+
+def test_settings_are_one_dataclass_per_agent():
+    from agents.recipes import accepted_hyperparams
+
+    assert set(PPOConfig.names()) < set(AMPConfig.names())
+    assert accepted_hyperparams(PPO) == set(PPOConfig.names()) - {"seed"}  # the recipe sets the seed in train:
+    model = PPO(None, n_steps=32, bounds_loss_coef=10, actor_hidden=(8,), **{k: v for k, v in TINY.items()
+                                                                            if k != "actor_hidden"})
+    # Values take their field's type, so a checkpoint stores the same dict however they were spelled.
+    assert model.hyperparams["bounds_loss_coef"] == 10.0 and isinstance(model.hyperparams["bounds_loss_coef"], float)
+    assert model.hyperparams["actor_hidden"] == [8]
+    assert model.hyperparams == {**PPOConfig().to_dict(), "n_steps": 32, "bounds_loss_coef": 10.0,
+                                 "actor_hidden": [8], "critic_hidden": [32, 32]}
+    # Attributes read and write through to the config.
+    assert model.n_steps == 32 and model.learning_rate == 3e-4
+    model.learning_rate = 1e-5
+    assert model.config.learning_rate == 1e-5 and model.hyperparams["learning_rate"] == 1e-5
+    with pytest.raises(TypeError, match=r"unexpected keyword argument\(s\) \['disc_hidden'\]"):
+        PPO(None, disc_hidden=(8,))
+    with pytest.raises(ValueError, match="lr_schedule"):
+        PPO(None, lr_schedule="cosine")
+
+
+def test_policy_can_be_built_apart_and_handed_in(tmp_path):
+    torch.manual_seed(0)
+    policy = ActorCritic(3, 1, actor_hidden=(16,), critic_hidden=(16,), log_std_init=-0.5)
+    model = PPO("Pendulum-v1", n_envs=2, n_steps=16, batch_size=32, policy=policy, seed=0, verbose=0)
+    assert model.policy is policy
+    before = policy.actor[0].weight.detach().clone()
+    model.learn(64, progress_bar=False)
+    assert not torch.equal(before, policy.actor[0].weight)  # the handed-in policy is what trains
+    path = model.save(tmp_path / "p.pt")
+    again = PPO.load(path, verbose=0, policy=ActorCritic(3, 1, actor_hidden=(16,), critic_hidden=(16,)))
+    obs = np.random.default_rng(0).normal(size=(8, 3)).astype(np.float32)
+    np.testing.assert_array_equal(again.predict(obs)[0], model.predict(obs)[0])
+    with pytest.raises(ValueError, match="policy is for obs 4"):
+        PPO("Pendulum-v1", policy=ActorCritic(4, 1), verbose=0)
+
+
+def test_collector_fills_the_buffer_and_calls_its_hooks():
+    from collections import deque
+
+    import gymnasium as gym
+
+    from agents.rollout import RolloutCollector, RolloutHooks
+
+    class Recorder(RolloutHooks):
+        def __init__(self):
+            self.calls = []
+
+        def on_reset(self, info):
+            self.calls.append("reset")
+
+        def on_rollout_start(self, buffer):
+            self.calls.append("start")
+
+        def on_step(self, t, info, done, valid):
+            self.calls.append(t)
+
+    env = gym.make_vec("Pendulum-v1", num_envs=2, vectorization_mode="sync")
+    policy = ActorCritic(3, 1, actor_hidden=(8,), critic_hidden=(8,))
+    episodes, hooks = deque(), Recorder()
+    collector = RolloutCollector(env, policy, lambda a: a.clamp(-1, 1).numpy() * 2, 0.99, episodes, hooks)
+    collector.reset(seed=0)
+    buf = RolloutBuffer(5, 2, 3, 1)
+    last_value, _ = collector.collect(buf)
+    assert hooks.calls == ["reset", "start", 0, 1, 2, 3, 4]
+    assert last_value.shape == (2,) and bool(buf.valid.all())
+    # Stored observations are the policy's normalised input of their step; values match them.
+    torch.testing.assert_close(buf.values[-1], policy.value(buf.obs[-1]))
+    assert policy.obs_norm.count.item() == pytest.approx(10, abs=1e-3)
+    env.close()

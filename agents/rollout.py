@@ -1,0 +1,237 @@
+"""Rollouts apart from the update: where transitions are stored and how they are gathered.
+
+- `RolloutBuffer`: `n_steps` x `n_envs` transitions in preallocated tensors, GAE over them, and
+  minibatches of the valid ones. Algorithms that need more per step (AMP's discriminator windows)
+  add named fields with `extra`.
+- `RolloutCollector`: steps a vector env with a policy and fills a buffer, carrying the env's
+  state (last observation, episode returns) from one rollout to the next. It calls a
+  `RolloutHooks` object at reset, at the start of each rollout and after every step.
+
+An algorithm's iteration is then: `collector.collect(buffer)`, shape the rewards if it wants to,
+`buffer.compute_advantages(...)`, then its own update over `buffer.minibatches(...)`.
+
+Vector envs autoreset in one of two ways (Gymnasium's AutoresetMode). SameStep: the step that ends
+an episode already returns the next episode's first observation. NextStep: the step after the end
+only resets the world, its action is ignored and its reward is no transition; such steps are kept
+in the buffer with `valid` = 0 so every tensor stays (n_steps, n_envs), and left out of GAE's
+targets and of every minibatch.
+"""
+from __future__ import annotations
+
+from collections import deque
+from typing import Callable, Iterator
+
+import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode, VectorEnv
+
+from .networks import Policy
+from .vec import autoreset_mode, final_observations, reward_terms
+
+
+class RolloutBuffer:
+    """One rollout: tensors of shape (n_steps, n_envs, ...) allocated once and refilled.
+
+    obs:        observations as the policy saw them (normalised with that step's statistics)
+    actions:    sampled actions, in the policy's [-1, 1]-space, before clipping
+    log_probs:  log-density of `actions` when they were sampled
+    values:     value estimates of `obs`, in return units
+    rewards:    rewards (0 on invalid steps); algorithms may reshape them before GAE
+    dones:      1 where the step ended its episode (terminated or truncated)
+    bootstrap:  gamma x V(final observation) where a time limit cut the episode, else 0: a
+                truncated episode's future is not zero, and folding it into the reward keeps GAE's
+                "no chaining across episodes" rule simple
+    valid:      1 for real transitions, 0 for NextStep's reset-only steps
+    advantages, returns: filled by `compute_advantages`
+    """
+
+    FIELDS = ("log_probs", "values", "rewards", "dones", "bootstrap", "valid", "advantages", "returns")
+
+    def __init__(self, n_steps: int, n_envs: int, obs_dim: int, act_dim: int, device: torch.device | str = "cpu"):
+        self.n_steps, self.n_envs, self.device = int(n_steps), int(n_envs), torch.device(device)
+        self.obs = torch.zeros(n_steps, n_envs, obs_dim, device=self.device)
+        self.actions = torch.zeros(n_steps, n_envs, act_dim, device=self.device)
+        for name in self.FIELDS:
+            setattr(self, name, torch.zeros(n_steps, n_envs, device=self.device))
+        self.extras: dict[str, torch.Tensor] = {}
+        self._flat: dict[str, torch.Tensor] | None = None  # `transitions()`, once per rollout
+
+    def extra(self, name: str, dim: int) -> torch.Tensor:
+        """A named (n_steps, n_envs, dim) field an algorithm fills itself (allocated once)."""
+        field = self.extras.get(name)
+        if field is None or field.shape[-1] != dim:
+            field = self.extras[name] = torch.zeros(self.n_steps, self.n_envs, dim, device=self.device)
+        return field
+
+    def matches(self, n_steps: int, n_envs: int, obs_dim: int, act_dim: int) -> bool:
+        return self.obs.shape == (n_steps, n_envs, obs_dim) and self.actions.shape[-1] == act_dim
+
+    def reset(self) -> None:
+        # Only `bootstrap` is written sparsely; the rest is overwritten step by step. Zeroing all
+        # keeps a failed rollout from leaking into the next one.
+        for t in (self.obs, self.actions, *(getattr(self, n) for n in self.FIELDS), *self.extras.values()):
+            t.zero_()
+        self._flat = None
+
+    def compute_advantages(self, last_value: torch.Tensor, gamma: float, gae_lambda: float) -> None:
+        """GAE(gamma, lambda) advantages and their value targets (`returns`), in place."""
+        self.advantages.copy_(gae(self.rewards + self.bootstrap, self.values, self.dones, last_value,
+                                  gamma, gae_lambda))
+        self.returns.copy_(self.advantages + self.values)
+        self._flat = None
+
+    def valid_mask(self) -> torch.Tensor:
+        """(n_steps * n_envs,) bool: which flattened transitions are real."""
+        return self.valid.reshape(-1).bool()
+
+    def transitions(self) -> dict[str, torch.Tensor]:
+        """The valid transitions, flattened: obs, actions, log_probs, values, advantages, returns
+        (gathered once per rollout, after `compute_advantages`)."""
+        if self._flat is None:
+            keep = self.valid_mask()
+            names = ("obs", "actions", "log_probs", "values", "advantages", "returns")
+            self._flat = {n: getattr(self, n).reshape(-1, *getattr(self, n).shape[2:])[keep] for n in names}
+        return self._flat
+
+    def minibatches(self, batch_size: int) -> Iterator[dict[str, torch.Tensor]]:
+        """One epoch over the valid transitions in shuffled minibatches (`minibatches`)."""
+        return minibatches(self.transitions(), batch_size)
+
+
+def minibatches(data: dict[str, torch.Tensor], batch_size: int) -> Iterator[dict[str, torch.Tensor]]:
+    """One epoch over `data` (tensors of equal length) in shuffled minibatches of `batch_size`,
+    capped at the data's length. A last partial minibatch is dropped: a tiny minibatch would
+    weigh as much in the update as a full one."""
+    n = len(next(iter(data.values())))
+    mb = min(batch_size, n)
+    if mb == 0:
+        return
+    perm = torch.randperm(n, device=next(iter(data.values())).device)
+    for start in range(0, n - mb + 1, mb):
+        i = perm[start:start + mb]
+        yield {k: v[i] for k, v in data.items()}
+
+
+def gae(rewards: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, last_value: torch.Tensor,
+        gamma: float, gae_lambda: float) -> torch.Tensor:
+    """Generalised advantage estimates of (T, N) rewards (bootstraps included) and values.
+
+    A done step does not chain into the next (that step belongs to another episode); the last
+    step chains into `last_value`, the value of the observation after the rollout.
+    """
+    adv = torch.zeros_like(rewards)
+    running = torch.zeros_like(last_value)
+    T = len(rewards)
+    for t in reversed(range(T)):
+        next_value = last_value if t == T - 1 else values[t + 1]
+        live = 1.0 - dones[t]
+        delta = rewards[t] + gamma * next_value * live - values[t]
+        running = delta + gamma * gae_lambda * live * running
+        adv[t] = running
+    return adv
+
+
+class RolloutHooks:
+    """What a collector tells an algorithm that needs more than transitions. Defaults do nothing.
+
+    on_reset(info): the env's first reset (the `info` of `env.reset`).
+    on_rollout_start(buffer): before the first step of a rollout.
+    on_step(t, info, done, valid): after step `t`; `done` marks worlds whose episode ended in this
+        step, `valid` worlds whose step was a real transition (both (n_envs,) bool arrays).
+    """
+
+    def on_reset(self, info: dict) -> None:
+        pass
+
+    def on_rollout_start(self, buffer: RolloutBuffer) -> None:
+        pass
+
+    def on_step(self, t: int, info: dict, done: np.ndarray, valid: np.ndarray) -> None:
+        pass
+
+
+class RolloutCollector:
+    """Steps `env` with `policy` and fills a `RolloutBuffer`, one rollout per `collect` call.
+
+    to_env_action: maps the policy's actions ([-1, 1]-space tensors) to the env's action array.
+    gamma: the discount, for the bootstrap of time-limit truncations.
+    episodes: a deque that receives (return, length) of every episode that ends.
+    hooks: a `RolloutHooks`.
+    """
+
+    def __init__(self, env: VectorEnv, policy: Policy, to_env_action: Callable[[torch.Tensor], np.ndarray],
+                 gamma: float, episodes: deque, hooks: RolloutHooks | None = None,
+                 device: torch.device | str = "cpu"):
+        self.env, self.policy, self.to_env_action = env, policy, to_env_action
+        self.gamma, self.episodes = gamma, episodes
+        self.hooks = hooks if hooks is not None else RolloutHooks()
+        self.device = torch.device(device)
+        self.autoreset = autoreset_mode(env)
+        self.last_obs: np.ndarray | None = None  # None until `reset`
+
+    def reset(self, seed: int | None = None) -> None:
+        """Reset every world (the only full reset: afterwards the env autoresets)."""
+        self.last_obs, info = self.env.reset(seed=seed)
+        self.hooks.on_reset(info)
+        n = self.env.num_envs
+        self.prev_done = np.zeros(n, bool)
+        self.ep_return, self.ep_length = np.zeros(n), np.zeros(n, np.int64)
+
+    def _tensor(self, x) -> torch.Tensor:
+        return torch.as_tensor(x, dtype=torch.float32, device=self.device)
+
+    @torch.no_grad()
+    def collect(self, buf: RolloutBuffer) -> tuple[torch.Tensor, dict[str, float]]:
+        """Fill `buf` with `buf.n_steps` steps of every world. Returns the value of the
+        observation after the last step (GAE's tail) and the mean per step of each `reward_*`
+        term the env reports."""
+        if self.last_obs is None:
+            raise RuntimeError("call reset() before collect()")
+        env, pol, dev = self.env, self.policy, self.device
+        N = env.num_envs
+        buf.reset()
+        self.hooks.on_rollout_start(buf)
+        terms_sum: dict[str, float] = {}
+        for t in range(buf.n_steps):
+            # NextStep autoreset: the step after an episode's end only resets; it is no transition.
+            valid = ~self.prev_done
+            obs = self._tensor(self.last_obs)
+            pol.update_obs_stats(obs[torch.as_tensor(valid, device=dev)])
+            nobs = pol.normalize(obs)
+            dist, value = pol(nobs)
+            action = dist.sample()
+            buf.obs[t], buf.actions[t] = nobs, action
+            buf.log_probs[t] = dist.log_prob(action).sum(-1)
+            buf.values[t] = value
+
+            next_obs, reward, terminated, truncated, info = env.step(self.to_env_action(action))
+            terminated, truncated = np.asarray(terminated, bool), np.asarray(truncated, bool)
+            done = terminated | truncated
+            reward = np.where(valid, np.asarray(reward, np.float64), 0.0)
+            # A time limit is not a failure: fold the value of where the episode stopped into the reward.
+            cut = truncated & ~terminated & valid
+            if cut.any():
+                final = final_observations(next_obs, info, done, self.autoreset)[cut]
+                buf.bootstrap[t, torch.as_tensor(cut, device=dev)] = self.gamma * pol.value(
+                    pol.normalize(self._tensor(final)))
+            buf.rewards[t] = self._tensor(reward)
+            buf.dones[t] = self._tensor(done)
+            buf.valid[t] = self._tensor(valid)
+            self.hooks.on_step(t, info, done, valid)
+            for k, v in reward_terms(info, valid).items():
+                terms_sum[k] = terms_sum.get(k, 0.0) + v
+
+            self.ep_return += reward
+            self.ep_length += valid
+            for i in np.flatnonzero(done & valid):
+                self.episodes.append((self.ep_return[i], self.ep_length[i]))
+            self.ep_return[done] = 0.0
+            self.ep_length[done] = 0
+            self.prev_done = done if self.autoreset == AutoresetMode.NEXT_STEP else np.zeros(N, bool)
+            self.last_obs = next_obs
+            if not np.isfinite(next_obs).all():
+                raise FloatingPointError("the env returned a non-finite observation; the simulation diverged "
+                                         "without ending its episode")
+
+        last_value = pol.value(pol.normalize(self._tensor(self.last_obs)))
+        return last_value, {k: s / buf.n_steps for k, s in terms_sum.items()}

@@ -1,0 +1,108 @@
+"""Training throughput against the env's own stepping rate, measured side by side in one run.
+
+    python benchmarks/bench_train.py [--worlds 32] [--iterations 5] [--repeats 3] [--threads 1]
+
+Three rates at the same number of worlds N, each repeat measuring all three in turn (so load on the
+machine hits them alike), reported as medians of `--repeats`:
+
+- env: `gym.make_vec(id, num_envs=N, **recipe env kwargs)` stepped with uniformly random actions
+  (drawn up front, not timed) for as many steps per world as the agents collect, N x steps / s;
+- PPO: the `imitation_ppo` recipe's agent (its env id, env kwargs and hyperparameters) training on
+  N worlds, samples/s over whole iterations (rollout collection + update + logging), after one
+  untimed warm-up iteration (first reset, allocations);
+- AMP: the same with the `imitation_amp` recipe (discriminator update and style reward included).
+
+It prints PPO/env (the share of the env's rate training keeps) and AMP/PPO (what AMP's extras
+cost), then one markdown table line. Torch runs on `--threads` CPU threads (default 1, as the
+recipes recommend on small CPUs, where torch's pool fights the simulation for cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import torch
+
+import smpl_envs  # noqa: F401  (registers the ids)
+from agents import AGENTS
+from agents.recipes import load_recipe
+
+
+def make_agent(recipe: dict, worlds: int, device: str):
+    env, agent = recipe["env"], recipe["agent"]
+    return AGENTS[agent["class"]](env["id"], n_envs=worlds, env_kwargs=env["kwargs"], seed=recipe["train"]["seed"],
+                                  device=device, verbose=0, log_dir=None, tensorboard=False, **agent["hyperparams"])
+
+
+def train_rate(agent, iterations: int) -> float:
+    """Samples/s of `iterations` whole training iterations."""
+    per_iteration = agent.config.n_steps * agent.env.num_envs
+    start = agent.num_timesteps
+    t = time.perf_counter()
+    agent.learn(iterations * per_iteration, progress_bar=False, reset_num_timesteps=False)
+    return (agent.num_timesteps - start) / (time.perf_counter() - t)
+
+
+def env_rate(env, steps: int, rng: np.random.Generator) -> float:
+    """Steps/s (all worlds counted) of `steps` random-action steps of every world."""
+    low, high = env.single_action_space.low, env.single_action_space.high
+    actions = rng.uniform(low, high, (steps, env.num_envs, len(low))).astype(np.float32)
+    t = time.perf_counter()
+    for a in actions:
+        env.step(a)
+    return env.num_envs * steps / (time.perf_counter() - t)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--ppo-recipe", default="imitation_ppo")
+    p.add_argument("--amp-recipe", default="imitation_amp")
+    p.add_argument("--worlds", type=int, default=32, help="worlds N (default: 32, the recipes' num_envs)")
+    p.add_argument("--iterations", type=int, default=5, help="timed training iterations per repeat")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    p.add_argument("--device", default="cpu")
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+    ppo_recipe, amp_recipe = load_recipe(args.ppo_recipe), load_recipe(args.amp_recipe)
+    env_id = ppo_recipe["env"]["id"]
+    if amp_recipe["env"]["id"] != env_id:
+        raise SystemExit(f"the recipes train on different envs: {env_id} and {amp_recipe['env']['id']}")
+
+    env = gym.make_vec(env_id, num_envs=args.worlds, **ppo_recipe["env"]["kwargs"])
+    env.reset(seed=0)
+    ppo = make_agent(ppo_recipe, args.worlds, args.device)
+    amp = make_agent(amp_recipe, args.worlds, args.device)
+    steps = ppo.config.n_steps * args.iterations  # per world: as many as PPO collects per repeat
+    for agent in (ppo, amp):  # warm-up: the first reset and the first iteration's allocations
+        agent.learn(agent.config.n_steps * args.worlds, progress_bar=False)
+    env_rate(env, min(steps, 8), np.random.default_rng(1))
+
+    print(f"{os.cpu_count()} CPU cores, torch {torch.__version__} on {args.threads} thread(s), "
+          f"MuJoCo {mujoco.__version__}; {env_id} at {args.worlds} worlds; {args.iterations} iterations "
+          f"({ppo.config.n_steps} steps each) per repeat, {args.repeats} repeats (medians)", flush=True)
+    rng = np.random.default_rng(0)
+    rates = []
+    for r in range(args.repeats):
+        rates.append((env_rate(env, steps, rng), train_rate(ppo, args.iterations), train_rate(amp, args.iterations)))
+        print(f"repeat {r + 1}: env {rates[-1][0]:.0f} steps/s, PPO {rates[-1][1]:.0f} samples/s, "
+              f"AMP {rates[-1][2]:.0f} samples/s", flush=True)
+    rates = np.array(rates)
+    env_s, ppo_s, amp_s = np.median(rates, 0)
+    ppo_env, amp_ppo = np.median(rates[:, 1] / rates[:, 0]), np.median(rates[:, 2] / rates[:, 1])
+    print(f"PPO/env {ppo_env:.2f}, AMP/PPO {amp_ppo:.2f}")
+    print("| id | worlds | torch threads | env steps/s | PPO samples/s | AMP samples/s | PPO/env | AMP/PPO |")
+    print("|---|---|---|---|---|---|---|---|")
+    print(f"| `{env_id}` | {args.worlds} | {args.threads} | {env_s:.0f} | {ppo_s:.0f} | {amp_s:.0f} "
+          f"| {ppo_env:.2f} | {amp_ppo:.2f} |")
+    for closeable in (env, ppo, amp):
+        closeable.close()
+
+
+if __name__ == "__main__":
+    main()

@@ -362,13 +362,40 @@ def make_run_dir(recipe: dict, root: str | os.PathLike = "runs", name: str | Non
     if resume:
         if not run.is_dir():
             raise RecipeError(f"cannot resume {run}: no such run directory")
-    elif run.exists() and (not run.is_dir() or any(run.iterdir())):
-        raise RecipeError(f"run directory {run} already exists and is not empty; choose another "
-                          f"--run-dir or continue it with --resume {run}")
+    else:
+        check_run_dir_free(run)
     for sub in RUN_SUBDIRS:
         (run / sub).mkdir(parents=True, exist_ok=True)
     write_config(run, recipe)
     return run
+
+
+def check_run_dir_free(run: str | os.PathLike) -> None:
+    """Refuse `run` as a new run's directory when it exists and is not empty, with advice that
+    fits what it holds: --resume only helps a run that saved a checkpoint."""
+    run = Path(run)
+    if not run.exists() or (run.is_dir() and not any(run.iterdir())):
+        return
+    if run.is_dir() and is_unused_run_dir(run):
+        raise RecipeError(f"run directory {run} already exists, holding only the config.yaml of a start that "
+                          "never trained; delete it or pass --overwrite")
+    raise RecipeError(f"run directory {run} already exists and is not empty; choose another "
+                      f"--run-dir or continue it with --resume {run}")
+
+
+def is_unused_run_dir(run: str | os.PathLike) -> bool:
+    """True for a directory holding nothing but config.yaml and the run subdirectories without
+    any file in them: what a start that failed before training leaves, nothing worth keeping."""
+    run = Path(run)
+    if not run.is_dir():
+        return False
+    for entry in run.iterdir():
+        if entry.name == CONFIG_NAME and entry.is_file():
+            continue
+        if entry.name in RUN_SUBDIRS and entry.is_dir() and not any(p.is_file() for p in entry.rglob("*")):
+            continue
+        return False
+    return True
 
 
 def write_config(run: str | os.PathLike, recipe: dict) -> Path:
@@ -421,5 +448,6 @@ def run_dir_of(checkpoint: str | os.PathLike) -> Path | None:
 
 
 __all__ = ["RecipeError", "load_recipe", "apply_overrides", "validate_recipe", "parse_override", "parse_value",
-           "set_dotted", "make_run_dir", "read_config", "write_config", "find_checkpoint", "run_dir_of",
+           "set_dotted", "make_run_dir", "check_run_dir_free", "is_unused_run_dir", "read_config", "write_config",
+           "find_checkpoint", "run_dir_of",
            "available_recipes", "recipe_dirs", "resolve_recipe_path", "accepted_hyperparams"]

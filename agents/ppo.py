@@ -277,8 +277,8 @@ class PPO:
 
     def _start_collector(self, seed: int | None) -> None:
         """A collector on the attached env, which it resets (with `seed`)."""
-        self._collector = RolloutCollector(self.env, self.policy, self._to_env_action, self.config.gamma,
-                                           self.episodes, self._rollout_hooks(), self.device)
+        self._collector = RolloutCollector(self.env, self.policy, self._to_env_action, self.episodes,
+                                           self._rollout_hooks(), self.device)
         self._collector.reset(seed=seed)
 
     def _set_learning_rate(self, target: int) -> None:

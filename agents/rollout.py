@@ -38,9 +38,9 @@ class RolloutBuffer:
     values:     value estimates of `obs`, in return units
     rewards:    rewards (0 on invalid steps); algorithms may reshape them before GAE
     dones:      1 where the step ended its episode (terminated or truncated)
-    bootstrap:  gamma x V(final observation) where a time limit cut the episode, else 0: a
-                truncated episode's future is not zero, and folding it into the reward keeps GAE's
-                "no chaining across episodes" rule simple
+    bootstrap:  V(final observation) where a time limit cut the episode, else 0: a truncated
+                episode's future is not zero; GAE adds gamma x this to the step's reward, which
+                keeps its "no chaining across episodes" rule simple
     valid:      1 for real transitions, 0 for NextStep's reset-only steps
     advantages, returns: filled by `compute_advantages`
     """
@@ -75,7 +75,7 @@ class RolloutBuffer:
 
     def compute_advantages(self, last_value: torch.Tensor, gamma: float, gae_lambda: float) -> None:
         """GAE(gamma, lambda) advantages and their value targets (`returns`), in place."""
-        self.advantages.copy_(gae(self.rewards + self.bootstrap, self.values, self.dones, last_value,
+        self.advantages.copy_(gae(self.rewards + gamma * self.bootstrap, self.values, self.dones, last_value,
                                   gamma, gae_lambda))
         self.returns.copy_(self.advantages + self.values)
         self._flat = None
@@ -154,16 +154,15 @@ class RolloutCollector:
     """Steps `env` with `policy` and fills a `RolloutBuffer`, one rollout per `collect` call.
 
     to_env_action: maps the policy's actions ([-1, 1]-space tensors) to the env's action array.
-    gamma: the discount, for the bootstrap of time-limit truncations.
     episodes: a deque that receives (return, length) of every episode that ends.
     hooks: a `RolloutHooks`.
     """
 
     def __init__(self, env: VectorEnv, policy: Policy, to_env_action: Callable[[torch.Tensor], np.ndarray],
-                 gamma: float, episodes: deque, hooks: RolloutHooks | None = None,
+                 episodes: deque, hooks: RolloutHooks | None = None,
                  device: torch.device | str = "cpu"):
         self.env, self.policy, self.to_env_action = env, policy, to_env_action
-        self.gamma, self.episodes = gamma, episodes
+        self.episodes = episodes
         self.hooks = hooks if hooks is not None else RolloutHooks()
         self.device = torch.device(device)
         self.autoreset = autoreset_mode(env)
@@ -208,12 +207,11 @@ class RolloutCollector:
             terminated, truncated = np.asarray(terminated, bool), np.asarray(truncated, bool)
             done = terminated | truncated
             reward = np.where(valid, np.asarray(reward, np.float64), 0.0)
-            # A time limit is not a failure: fold the value of where the episode stopped into the reward.
+            # A time limit is not a failure: keep the value of where the episode stopped.
             cut = truncated & ~terminated & valid
             if cut.any():
                 final = final_observations(next_obs, info, done, self.autoreset)[cut]
-                buf.bootstrap[t, torch.as_tensor(cut, device=dev)] = self.gamma * pol.value(
-                    pol.normalize(self._tensor(final)))
+                buf.bootstrap[t, torch.as_tensor(cut, device=dev)] = pol.value(pol.normalize(self._tensor(final)))
             buf.rewards[t] = self._tensor(reward)
             buf.dones[t] = self._tensor(done)
             buf.valid[t] = self._tensor(valid)

@@ -54,7 +54,7 @@ def test_gae_matches_hand_computation():
     buf.rewards[:, 0] = torch.tensor([1.0, 2.0, 3.0])
     buf.values[:, 0] = torch.tensor([0.5, 1.0, 1.5])
     buf.dones[:, 0] = torch.tensor([0.0, 1.0, 0.0])
-    buf.bootstrap[:, 0] = torch.tensor([0.0, 0.9 * 4.0, 0.0])  # step 1 was cut by a time limit
+    buf.bootstrap[:, 0] = torch.tensor([0.0, 4.0, 0.0])  # step 1 was cut by a time limit, V(final) = 4
     buf.compute_advantages(torch.tensor([2.0]), gamma=0.9, gae_lambda=0.5)
     d2 = 3.0 + 0.9 * 2.0 - 1.5
     d1 = 2.0 + 0.9 * 4.0 - 1.0               # episode ends: no chaining into step 2
@@ -313,7 +313,7 @@ def test_collector_fills_the_buffer_and_calls_its_hooks():
     env = gym.make_vec("Pendulum-v1", num_envs=2, vectorization_mode="sync")
     policy = ActorCritic(3, 1, actor_hidden=(8,), critic_hidden=(8,))
     episodes, hooks = deque(), Recorder()
-    collector = RolloutCollector(env, policy, lambda a: a.clamp(-1, 1).numpy() * 2, 0.99, episodes, hooks)
+    collector = RolloutCollector(env, policy, lambda a: a.clamp(-1, 1).numpy() * 2, episodes, hooks)
     collector.reset(seed=0)
     buf = RolloutBuffer(5, 2, 3, 1)
     last_value, _ = collector.collect(buf)
@@ -323,3 +323,23 @@ def test_collector_fills_the_buffer_and_calls_its_hooks():
     torch.testing.assert_close(buf.values[-1], policy.value(buf.obs[-1]))
     assert policy.obs_norm.count.item() == pytest.approx(10, abs=1e-3)
     env.close()
+
+
+def test_amp_reaches_the_clips_only_through_the_documented_motion_lib():
+    import gymnasium as gym
+
+    from agents.amp import reference_motion
+
+    vec = gym.make_vec("SMPL/Speed-v0", num_envs=2, motions=["walk", "run"])
+    single = gym.make("SMPL/Imitation-v0", motions="walk")
+    assert reference_motion(vec) is vec.motion_lib
+    assert reference_motion(gym.vector.SyncVectorEnv([lambda: single])) is single.unwrapped.motion_lib
+    with pytest.raises(ValueError, match="motion_lib"):
+        reference_motion(gym.make_vec("SMPL/Speed-v0", num_envs=1))  # a goal task made without style clips
+    # A goal task's style clips are what AMP's demo windows come from.
+    model = AMP(vec, n_steps=8, batch_size=16, n_epochs=1, disc_hidden=(16,), replay_size=50, seed=0, **TINY)
+    assert model.motion_lib.num_motions == 2
+    model.learn(16, progress_bar=False)
+    assert "amp/disc_loss" in model.logger.last
+    vec.close()
+    single.close()

@@ -7,8 +7,9 @@
 A recipe has the sections `env`, `agent`, `train`, `eval` and `video` (see tasks/*.yaml) and may
 carry `profiles`: named sets of dotted-key overrides (`agent.hyperparams.batch_size: 16384`) that
 rescale it, e.g. from this CPU box to PHC's GPU budget. `base: <recipe>` starts from another
-recipe and overrides only what differs (mappings merge key by key, except env.kwargs and
-eval.options, which are stated whole; anything else is replaced; profiles are not inherited), so shared values are written once. `eval.options` are the task's evaluation options (imitation:
+recipe and overrides only what differs (mappings merge key by key, profiles included, except
+env.kwargs and eval.options, which are stated whole; anything else is replaced), so shared
+values are written once. `eval.options` are the task's evaluation options (imitation:
 threshold; goal tasks: episodes, seed), checked against the task's protocol. Resolving a recipe applies the profile,
 then the command line's `key=value` overrides, fills in defaults and validates every section, so a
 typo fails before any env is built rather than hours into a run.
@@ -166,15 +167,12 @@ def _read_with_bases(path: Path, seen: tuple[Path, ...]) -> dict:
     base = raw.pop("base", None)
     if base is None:
         return raw
-    # Profiles rescale one recipe's own values, so each recipe states its own.
     if not isinstance(base, str):
         raise RecipeError(f"{path}: base must be a recipe name or path, got {base!r}")
     # A relative base path is relative to the recipe that names it; a bare name is looked up.
     candidate = path.parent / base
     base_path = candidate if candidate.suffix in (".yaml", ".yml") and candidate.is_file() else resolve_recipe_path(base)
-    inherited = _read_with_bases(base_path, (*seen, path.resolve()))
-    inherited.pop("profiles", None)
-    return _deep_merge(inherited, raw)
+    return _deep_merge(_read_with_bases(base_path, (*seen, path.resolve())), raw)
 
 
 # Mappings a recipe states whole: their keys belong to one task, so a base's do not carry over.

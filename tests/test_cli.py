@@ -66,8 +66,25 @@ def test_shipped_recipes_load(name, profile):
         assert isinstance(hp["learning_rate"], float)
 
 
-def test_all_four_recipes_ship():
-    assert {"imitation_ppo", "imitation_amp", "keypoint_amp", "demo_walk_ppo"} <= set(SHIPPED)
+def test_every_task_has_ppo_and_amp_recipes():
+    assert {"imitation_ppo", "imitation_amp", "keypoint_amp", "demo_walk_ppo", "speed_ppo", "speed_amp",
+            "reach_ppo", "reach_amp", "strike_ppo", "strike_amp"} <= set(SHIPPED)
+
+
+def test_recipes_share_values_through_base(tmp_path):
+    demo, full = load_recipe("demo_walk_ppo"), load_recipe("imitation_ppo")
+    assert demo["agent"] == full["agent"] and demo["env"]["num_envs"] == 16
+    speed = load_recipe("speed_amp")
+    assert speed["env"]["kwargs"] == {"motions": ["walk", "run"]}      # stated whole, not merged
+    assert speed["eval"]["options"] == {"episodes": 32, "seed": 0}      # the task's own options
+    assert speed["agent"] == load_recipe("imitation_amp")["agent"]
+    (tmp_path / "a.yaml").write_text("base: b.yaml\n")
+    (tmp_path / "b.yaml").write_text("base: a.yaml\n")
+    with pytest.raises(RecipeError, match="loop"):
+        load_recipe(tmp_path / "a.yaml")
+    (tmp_path / "c.yaml").write_text("base: speed_ppo\neval: {options: {threshold: 0.5}}\n")
+    with pytest.raises(RecipeError, match="threshold"):
+        load_recipe(tmp_path / "c.yaml")
 
 
 def test_profile_then_overrides(tmp_path):
@@ -84,7 +101,7 @@ def test_profile_then_overrides(tmp_path):
     assert hp["actor_hidden"] == [64, 32]
     assert hp["batch_size"] == 16384 and hp["disc_hidden"] == [1024, 512]   # from the profile
     assert recipe["train"]["total_timesteps"] == 1_000_000
-    assert recipe["env"]["kwargs"] == {"motions": "walk", "energy_weight": 5e-5, "reward_weights": {"pos": 0.6}}
+    assert recipe["env"]["kwargs"] == {"motions": "walk", "reward_weights": {"pos": 0.6}}
     assert recipe["eval"]["motions"] == ["walk", "run"] and recipe["video"]["steps"] == 0
     assert recipe["overrides"][0] == "agent.hyperparams.learning_rate=3e-4"
 

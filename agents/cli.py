@@ -11,26 +11,37 @@
 A run directory holds config.yaml (the resolved recipe), checkpoints/ (ckpt_<steps>.pt, last.pt,
 best.pt), logs/ (progress.csv, tb/ for TensorBoard), videos/, and after training eval.json,
 eval.txt and curves.png. Mistakes in what the user typed end in one `error: ...` line and exit
-status 2; anything else is a bug and keeps its traceback.
+status 2; anything else is a bug and keeps its traceback. Settings are checked by building the
+env and the agent before the run directory is created (or `--overwrite` deletes the old one).
+
+Stopping and resuming: Ctrl-C or SIGTERM (schedulers, `timeout`) saves checkpoints/last.pt and
+prints the `--resume` command (exit status 130 / 143). `--resume` starts from last.pt or, when
+that does not read back intact, from the newest intact ckpt_*.pt (saying so); its logs continue
+from that checkpoint's step, replacing whatever a killed run logged after it; temporary files of
+interrupted saves are removed.
 """
 from __future__ import annotations
 
 import argparse
 import shutil
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
 
+from .checkpoint import clean_stale_temp_files, newest_readable_checkpoint
 from .plot import EmptyLogError, plot_run, read_progress
-from .recipes import (RecipeError, apply_overrides, available_recipes, find_checkpoint, load_recipe,
-                      make_run_dir, read_config, run_dir_of)
+from .recipes import (RecipeError, apply_overrides, available_recipes, check_run_dir_free, find_checkpoint,
+                      is_unused_run_dir, load_recipe, make_run_dir, read_config, run_dir_of)
 
 # Settings a checkpoint fixes: its weights only fit these.
 FIXED_ON_RESUME = ("env.id", "agent.class") + tuple(
     f"agent.hyperparams.{k}" for k in ("actor_hidden", "critic_hidden", "disc_hidden", "activation",
                                        "disc_activation", "amp_num_frames"))
 INTERRUPTED = 130  # the shell's status for a SIGINT
+TERMINATED = 143   # and for a SIGTERM
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -105,50 +116,186 @@ def build_parser() -> argparse.ArgumentParser:
 
 # ---------------------------------------------------------------------------------------- train
 def cmd_train(args) -> int:
-    if args.resume is not None:
-        recipe, run, overrides = _resume_recipe(args)
-    else:
-        if args.recipe is None:
-            raise RecipeError("train needs a RECIPE (or --resume RUN_DIR)")
-        overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
-        recipe = load_recipe(args.recipe, overrides, args.profile)
-        root, name = (args.run_dir.parent, args.run_dir.name) if args.run_dir else (args.runs_root, None)
+    # Everything that can fail on a bad setting (the recipe, the env, the agent, the device) is
+    # built before the run directory is created or an old one deleted, so a mistake costs nothing.
+    prepare = _prepare_resume if args.resume is not None else _prepare_new
+    recipe, run, agent, evaluator = prepare(args)
+    try:
+        return _train(args, recipe, run, agent, evaluator)
+    except BaseException:
+        # A new run that dies before writing anything would leave a directory that can neither
+        # be resumed nor reused; it holds nothing worth keeping.
+        if args.resume is None and is_unused_run_dir(run):
+            shutil.rmtree(run, ignore_errors=True)
+        raise
+    finally:
+        agent.close()
+
+
+def _prepare_new(args) -> tuple[dict, Path, Any, "Evaluator"]:
+    if args.recipe is None:
+        raise RecipeError("train needs a RECIPE (or --resume RUN_DIR)")
+    overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
+    recipe = load_recipe(args.recipe, overrides, args.profile)
+    root, name = (args.run_dir.parent, args.run_dir.name) if args.run_dir else (args.runs_root, None)
+    if args.run_dir is not None and not args.overwrite:
+        check_run_dir_free(args.run_dir)  # refuse before the slow part, not after it
+    _check_train_settings(recipe)
+    agent = _constructed(lambda: _new_agent(args, recipe), recipe)
+    try:
+        evaluator = _constructed(lambda: Evaluator(recipe, progress=not args.no_progress), recipe)
         if args.overwrite and args.run_dir is not None and args.run_dir.is_dir():
             shutil.rmtree(args.run_dir)
         run = make_run_dir(recipe, root, name)
-    print(f"run directory: {run}", flush=True)
+        _clean_temp_files(run / "checkpoints")
+        _attach_logger(agent, run)
+    except BaseException:
+        agent.close()
+        raise
+    return recipe, run, agent, evaluator
 
-    agent = _resume_agent(args, recipe, run, overrides) if args.resume else _new_agent(args, recipe, run)
-    evaluator = Evaluator(recipe, progress=not args.no_progress)
+
+def _prepare_resume(args) -> tuple[dict, Path, Any, "Evaluator"]:
+    recipe, run, overrides = _resume_recipe(args)
+    _check_train_settings(recipe)
+    _clean_temp_files(run / "checkpoints")
+    checkpoint = _resume_checkpoint(run)
+    agent = _constructed(lambda: _resume_agent(args, recipe, checkpoint, overrides), recipe)
+    try:
+        evaluator = _constructed(lambda: Evaluator(recipe, progress=not args.no_progress), recipe)
+        # Only now that the overrides proved usable are they recorded in config.yaml.
+        make_run_dir(recipe, run.parent, run.name, resume=True)
+        _attach_logger(agent, run, resume_step=agent.num_timesteps)
+    except BaseException:
+        agent.close()
+        raise
+    return recipe, run, agent, evaluator
+
+
+def _train(args, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
+    print(f"run directory: {run}", flush=True)
     callbacks, eval_cb = _callbacks(recipe, run, evaluator, resuming=args.resume is not None)
     remaining = recipe["train"]["total_timesteps"] - agent.num_timesteps
-    try:
-        if remaining > 0:
-            agent.learn(remaining, callback=callbacks, progress_bar=not args.no_progress,
-                        reset_num_timesteps=args.resume is None, log_interval=recipe["train"]["log_interval"])
-        else:
-            print(f"nothing to train: the run is at {agent.num_timesteps:,} of "
-                  f"{recipe['train']['total_timesteps']:,} timesteps")
-    except KeyboardInterrupt:
-        path = agent.save(run / "checkpoints" / "last.pt")
-        agent.close()
-        print(f"\ninterrupted at {agent.num_timesteps:,} timesteps; saved {path}\n"
-              f"continue with: smpl-envs train --resume {run}", file=sys.stderr)
-        return INTERRUPTED
-    agent.save(run / "checkpoints" / "last.pt")
+    with _SigtermAsInterrupt() as sigterm:
+        try:
+            if remaining > 0:
+                agent.learn(remaining, callback=callbacks, progress_bar=not args.no_progress,
+                            reset_num_timesteps=args.resume is None, log_interval=recipe["train"]["log_interval"])
+            else:
+                print(f"nothing to train: the run is at {agent.num_timesteps:,} of "
+                      f"{recipe['train']['total_timesteps']:,} timesteps")
+            agent.save(run / "checkpoints" / "last.pt")
+        except KeyboardInterrupt as stop:
+            sigterm.disarm()  # a SIGTERM now must not cut short the save below
+            path = agent.save(run / "checkpoints" / "last.pt")
+            terminated = isinstance(stop, Terminated)
+            print(f"\n{'terminated (SIGTERM)' if terminated else 'interrupted'} at {agent.num_timesteps:,} "
+                  f"timesteps; saved {path}\ncontinue with: smpl-envs train --resume {run}", file=sys.stderr)
+            return TERMINATED if terminated else INTERRUPTED
     _finish_run(agent, recipe, run, evaluator, eval_cb, progress=not args.no_progress)
-    agent.close()
     print(f"run directory: {run}")
     return 0
 
 
-def _new_agent(args, recipe: dict, run: Path):
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what schedulers and `timeout` send) raised in the main thread, so training stops
+    the way Ctrl-C stops it: last.pt saved, the resume command printed."""
+
+
+class _SigtermAsInterrupt:
+    """While active, the first SIGTERM raises Terminated; later ones are ignored until
+    `disarm` ends that too. The previous handler comes back on exit."""
+
+    def __init__(self):
+        self.armed = True
+        self.previous = None
+
+    def _handle(self, signum, frame) -> None:
+        if self.armed:
+            self.armed = False  # one exception: a second SIGTERM must not interrupt the save
+            raise Terminated()
+
+    def disarm(self) -> None:
+        self.armed = False
+
+    def __enter__(self) -> "_SigtermAsInterrupt":
+        # Python lets only the main thread set handlers (main() called from a worker thread
+        # then keeps the default: SIGTERM ends the process).
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGTERM, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGTERM, self.previous)
+
+
+def _check_train_settings(recipe: dict) -> None:
+    """Settings that pass the recipe's checks but would only fail later: the device when the
+    agent is built, the seed at the env's first reset (which comes after the run directory)."""
+    seed = recipe["train"]["seed"]
+    if seed is not None and seed < 0:
+        raise RecipeError(f"train.seed must be >= 0 (Gymnasium seeds are non-negative), got {seed}")
+    _check_device(recipe["train"]["device"], "train.device")
+
+
+def _check_device(device: str, what: str) -> None:
+    import torch
+
+    from .ppo import resolve_device
+
+    try:
+        resolved = resolve_device(device)
+    except RuntimeError as e:
+        raise RecipeError(f"{what}={device}: {e}") from None
+    if resolved.type == "cuda" and not torch.cuda.is_available():
+        raise RecipeError(f"{what}={device}: this torch ({torch.__version__}) sees no CUDA device; use cpu or auto")
+
+
+def _constructed(build, recipe: dict):
+    """build(), with the errors a bad setting raises during construction (an unknown env kwarg,
+    a learning rate of "fast" or -1, a hidden size that is not a list) turned into RecipeError:
+    they are the user's mistakes, to be reported in one line."""
+    try:
+        return build()
+    except RecipeError:
+        raise
+    except (ValueError, TypeError, RuntimeError) as e:
+        raise RecipeError(f"cannot build {recipe['agent']['class']} on {recipe['env']['id']} with these settings "
+                          f"(check env.kwargs, agent.hyperparams and train.device): {e}") from None
+
+
+def _new_agent(args, recipe: dict):
     from . import AGENTS
 
     env, train, agent = recipe["env"], recipe["train"], recipe["agent"]
+    # No logs yet: the run directory does not exist until the agent has been built (_attach_logger).
     return AGENTS[agent["class"]](
         env["id"], n_envs=env["num_envs"], env_kwargs=env["kwargs"], seed=train["seed"], device=train["device"],
-        verbose=0 if args.quiet else 1, log_dir=run / "logs", tensorboard=True, **agent["hyperparams"])
+        verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False, **agent["hyperparams"])
+
+
+def _attach_logger(agent, run: Path, resume_step: int | None = None) -> None:
+    """Point the agent's logs at the run directory. `resume_step`: the checkpoint's step count,
+    from which a resumed run's logs continue (rows a killed run wrote after it are dropped)."""
+    from .logger import Logger
+
+    agent.logger.close()
+    # Set directly rather than with set_logger, which has no resume_step.
+    agent.logger = Logger(run / "logs", stdout=agent.verbose > 0, tensorboard=True, resume_step=resume_step)
+    dropped = agent.logger.dropped_rows
+    if dropped:
+        print(f"logs: dropped {dropped} row(s) of progress.csv logged after the checkpoint's step "
+              f"{resume_step:,} (the run stopped before its next checkpoint); those steps are trained again",
+              file=sys.stderr)
+
+
+def _clean_temp_files(directory: Path) -> None:
+    # A run directory has one writer, so any temporary checkpoint file in it is a killed save's.
+    removed = clean_stale_temp_files(directory)
+    if removed:
+        print(f"removed {len(removed)} temporary file(s) left by an interrupted save: "
+              f"{', '.join(str(p) for p in removed)}", file=sys.stderr)
 
 
 def _resume_recipe(args) -> tuple[dict, Path, list[str]]:
@@ -166,13 +313,35 @@ def _resume_recipe(args) -> tuple[dict, Path, list[str]]:
         if _get_dotted(recipe, key) != _get_dotted(apply_overrides(stored), key):
             raise RecipeError(f"--set {key}: a resumed run keeps the env id, agent class and network sizes "
                               "of its checkpoint")
-    if not (run / "checkpoints" / "last.pt").is_file():
-        raise RecipeError(f"cannot resume {run}: it has no checkpoints/last.pt")
-    make_run_dir(recipe, run.parent, run.name, resume=True)  # records the new overrides in config.yaml
     return recipe, run, overrides
 
 
-def _resume_agent(args, recipe: dict, run: Path, overrides: list[str]):
+def _resume_checkpoint(run: Path) -> Path:
+    """last.pt, or when it is damaged (a kill mid-write on a filesystem without atomic renames,
+    a full disk) the newest numbered checkpoint that reads back intact, saying which and why."""
+    directory = run / "checkpoints"
+    path, skipped = newest_readable_checkpoint(directory)
+    if path is None:
+        why = "; ".join(f"{p.name}: {_brief(p, reason)}" for p, reason in skipped) or "no last.pt or ckpt_*.pt"
+        raise RecipeError(f"cannot resume {run}: no readable checkpoint in {directory} ({why})")
+    if path.name != "last.pt":
+        why = "; ".join(f"skipped {p} ({_brief(p, reason)})" for p, reason in skipped) or \
+            f"there is no {directory / 'last.pt'}"
+        print(f"warning: {why}; resuming from {path} instead", file=sys.stderr)
+    return path
+
+
+def _brief(path: Path, reason: str, limit: int = 200) -> str:
+    """A load error shortened for one line: without the path it starts with, up to its first
+    sentence (torch appends a paragraph of advice)."""
+    text = " ".join(reason.split())
+    if text.startswith(str(path)):
+        text = text[len(str(path)):].lstrip(" :").removeprefix("is ")
+    text = text.split(". ")[0]
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _resume_agent(args, recipe: dict, checkpoint: Path, overrides: list[str]):
     import agents
 
     # Hyperparameters changed on this command (a lower learning rate ...) replace the saved ones.
@@ -180,9 +349,9 @@ def _resume_agent(args, recipe: dict, run: Path, overrides: list[str]):
     names = {k[len(prefix):].split(".")[0] for k in (o.partition("=")[0].strip() for o in overrides)
              if k.startswith(prefix)}
     changed = {name: recipe["agent"]["hyperparams"][name] for name in names}
-    return agents.load(run / "checkpoints" / "last.pt", env="auto", device=recipe["train"]["device"],
+    return agents.load(checkpoint, env="auto", device=recipe["train"]["device"],
                        n_envs=recipe["env"]["num_envs"], env_kwargs=recipe["env"]["kwargs"],
-                       verbose=0 if args.quiet else 1, log_dir=run / "logs", tensorboard=True, **changed)
+                       verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False, **changed)
 
 
 def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool):
@@ -303,6 +472,8 @@ def _write_eval(result, json_path: Path) -> None:
 def cmd_eval(args) -> int:
     from .recipes import parse_override
 
+    if args.num_envs is not None and args.num_envs < 1:
+        raise RecipeError(f"--num-envs must be >= 1, got {args.num_envs}")
     agent, ckpt, run, config = _load_target(args)
     ev = (config or {}).get("eval", {})
     # The run's evaluation options, then the command line's: --threshold and --episodes are
@@ -312,8 +483,6 @@ def cmd_eval(args) -> int:
         options["threshold"] = ev["threshold"]
     options.update(parse_override(o) for o in args.options)
     options.update({k: v for k, v in (("threshold", args.threshold), ("episodes", args.episodes)) if v is not None})
-    if args.num_envs is not None and args.num_envs < 1:
-        raise RecipeError(f"--num-envs must be >= 1, got {args.num_envs}")
     motions = args.motions[0] if args.motions and len(args.motions) == 1 else args.motions
     result = evaluate_agent(agent, motions or ev.get("motions"), args.num_envs or ev.get("num_envs") or 8,
                             progress=not args.no_progress, **options)
@@ -343,10 +512,10 @@ def record_video(agent, path: Path, steps: int, motions=None, fps: float | None 
 
 
 def cmd_record(args) -> int:
-    agent, ckpt, run, config = _load_target(args)
-    video = (config or {}).get("video", {})
     if args.steps is not None and args.steps < 1:
         raise RecipeError(f"--steps must be >= 1, got {args.steps}")
+    agent, ckpt, run, config = _load_target(args)
+    video = (config or {}).get("video", {})
     if args.out is not None:
         out = args.out
     elif run is not None:
@@ -372,6 +541,7 @@ def _load_target(args) -> tuple[Any, Path, Path | None, dict | None]:
     """(agent without an env, its checkpoint, its run directory or None, the run's config or None)."""
     import agents
 
+    _check_device(args.device, "--device")
     ckpt = find_checkpoint(args.target, args.checkpoint)
     run = Path(args.target) if Path(args.target).is_dir() else run_dir_of(ckpt)
     config = read_config(run) if run is not None and (run / "config.yaml").is_file() else None

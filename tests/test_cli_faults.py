@@ -1,0 +1,315 @@
+"""`smpl-envs train` when things go wrong: nothing lost, nothing silently wrong.
+
+Each test reproduces one fault of the issue of that name: a SIGTERM that ended training without a
+checkpoint, logs of a killed run repeated after `--resume`, a truncated last.pt that stopped a
+resume with intact checkpoints beside it, bad settings that gave tracebacks after `--overwrite`
+had deleted the old run, failed starts that left unusable run directories, and temporary files
+of interrupted saves that stayed forever. Budgets are tiny: 2 worlds x 8 steps per iteration.
+"""
+import csv
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+import agents
+from agents import PPO
+from agents.cli import INTERRUPTED, TERMINATED, main
+from agents.logger import Logger
+
+STEPS_PER_ITERATION = 16  # env.num_envs x n_steps below
+TINY = ["--set", "env.num_envs=2", "--set", "agent.hyperparams.n_steps=8", "--set", "agent.hyperparams.batch_size=16",
+        "--set", "agent.hyperparams.actor_hidden=[32,32]", "--set", "agent.hyperparams.critic_hidden=[32,32]",
+        "--set", "video.steps=0", "--no-progress", "--quiet", "--threads", "1"]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _restore_torch_threads():
+    """--threads sets torch's process-wide pool; leave it as the other test modules found it."""
+    n = torch.get_num_threads()
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def base_run(tmp_path_factory):
+    """A finished 64-step run with ckpt_32, ckpt_64 and last.pt; tests change copies of it."""
+    tmp = tmp_path_factory.mktemp("faults")
+    run = tmp / "run"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SMPL_ENVS_CACHE", str(tmp / "cache"))  # as conftest does for each test
+        assert main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=64",
+                     "--set", "train.checkpoint_every=32", "--run-dir", str(run), *TINY]) == 0
+    return run
+
+
+@pytest.fixture
+def run(base_run, tmp_path):
+    copy = tmp_path / "run"
+    shutil.copytree(base_run, copy)
+    return copy
+
+
+def steps_logged(run: Path) -> list[float]:
+    with open(run / "logs" / "progress.csv", newline="") as f:
+        return [float(r["time/total_timesteps"]) for r in csv.DictReader(f)]
+
+
+def assert_increasing(steps: list[float]) -> None:
+    assert all(a < b for a, b in zip(steps, steps[1:])), steps
+
+
+def snapshot(directory: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(directory)): p.read_bytes() for p in sorted(directory.rglob("*")) if p.is_file()}
+
+
+def one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1, err
+    return err
+
+
+class Killed(BaseException):
+    """Stands in for a SIGKILL: leaves training without any handler running (no save, no message)."""
+
+
+def fail_on_update(monkeypatch, n: int, exc):
+    """Raise `exc` (an instance or a callable) in PPO's n-th update of this test; returns the
+    original update."""
+    update, calls = PPO._update, []
+
+    def patched(self, buf):
+        calls.append(1)
+        if len(calls) == n:
+            raise exc() if callable(exc) else exc
+        return update(self, buf)
+
+    monkeypatch.setattr(PPO, "_update", patched)
+    return update
+
+
+# ---------------------------------------------------------------------------------------- 1. SIGTERM
+@pytest.fixture
+def sigterm_guard():
+    """A SIGTERM handler of the test's own: should the CLI not replace it, the test fails
+    instead of the signal ending pytest."""
+    def unhandled(signum, frame):
+        raise AssertionError("SIGTERM reached the handler the CLI should have replaced")
+
+    previous = signal.signal(signal.SIGTERM, unhandled)
+    yield unhandled
+    signal.signal(signal.SIGTERM, previous)
+
+
+def test_sigterm_saves_a_resumable_checkpoint(tmp_path, monkeypatch, capsys, sigterm_guard):
+    def sigterm():
+        os.kill(os.getpid(), signal.SIGTERM)  # delivered to this (main) thread at once
+
+    update, calls = PPO._update, []
+
+    def terminated_update(self, buf):
+        calls.append(1)
+        if len(calls) == 2:
+            sigterm()
+        return update(self, buf)
+
+    monkeypatch.setattr(PPO, "_update", terminated_update)
+    run = tmp_path / "run"
+    code = main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=4096", "--run-dir", str(run), *TINY])
+    assert code == TERMINATED != INTERRUPTED
+    assert signal.getsignal(signal.SIGTERM) is sigterm_guard  # the CLI's handler lives only while training
+    assert agents.load(run / "checkpoints" / "last.pt").num_timesteps == 2 * STEPS_PER_ITERATION
+    err = capsys.readouterr().err
+    assert "SIGTERM" in err and f"smpl-envs train --resume {run}" in err
+
+    monkeypatch.setattr(PPO, "_update", update)
+    assert main(["train", "--resume", str(run), "--set", "train.total_timesteps=64", *TINY]) == 0
+    assert agents.load(run / "checkpoints" / "last.pt").num_timesteps == 64
+
+
+def test_sigterm_to_a_training_process(tmp_path):
+    """What `timeout` or a scheduler does: SIGTERM to a real `python -m agents train` mid-run."""
+    run = tmp_path / "run"
+    env = {**os.environ, "SMPL_ENVS_CACHE": str(tmp_path / "cache")}
+    proc = subprocess.Popen([sys.executable, "-m", "agents", "train", "demo_walk_ppo", "--set",
+                             "train.total_timesteps=10000000", "--run-dir", str(run), *TINY],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        csv_path = run / "logs" / "progress.csv"
+        deadline = time.monotonic() + 300
+        while not (csv_path.is_file() and len(csv_path.read_text().splitlines()) >= 3):
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() < deadline, "training logged nothing in 300 s"
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)  # promptly: one iteration plus a save
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == TERMINATED, err
+    assert f"smpl-envs train --resume {run}" in err
+    steps = agents.load(run / "checkpoints" / "last.pt").num_timesteps
+    assert steps >= 2 * STEPS_PER_ITERATION
+    # The saved step count may be mid-rollout; resuming trains on to the new budget.
+    assert main(["train", "--resume", str(run), "--set", f"train.total_timesteps={steps + 32}", *TINY]) == 0
+    assert agents.load(run / "checkpoints" / "last.pt").num_timesteps >= steps + 32
+
+
+# ---------------------------------------------------------------------------------------- 2. logs after a kill
+def test_resume_after_a_kill_logs_each_step_once(tmp_path, monkeypatch, capsys):
+    run = tmp_path / "run"
+    # Killed in the 4th update: checkpoints at 32, rows logged up to 48.
+    update = fail_on_update(monkeypatch, 4, Killed)
+    with pytest.raises(Killed):
+        main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=4096", "--set", "train.checkpoint_every=32",
+              "--run-dir", str(run), *TINY])
+    assert agents.load(run / "checkpoints" / "last.pt").num_timesteps == 32
+    assert steps_logged(run) == [16, 32, 48]
+    with open(run / "logs" / "progress.csv", "a") as f:
+        f.write("64.0,0.5")  # a row the kill cut short, without its newline
+    capsys.readouterr()
+
+    monkeypatch.setattr(PPO, "_update", update)
+    # TensorBoard reads event files in name order: creation second, then an unpadded counter of
+    # this process, so two files made in one second can sort "10" before "9". A real restart
+    # is a new process, later; start the resumed run's file in a later second, like one.
+    time.sleep(1.05)
+    assert main(["train", "--resume", str(run), "--set", "train.total_timesteps=96", *TINY]) == 0
+    assert "dropped 2 row(s)" in capsys.readouterr().err
+    assert steps_logged(run) == [16, 32, 48, 64, 80, 96]  # one row per step, the final evaluation's merged
+
+    # TensorBoard: the resumed writer purges the killed run's events past the checkpoint.
+    event_accumulator = pytest.importorskip("tensorboard.backend.event_processing.event_accumulator")
+    acc = event_accumulator.EventAccumulator(str(run / "logs" / "tb"))
+    acc.Reload()
+    tb_steps = [e.step for e in acc.Scalars("time/iterations")]
+    assert tb_steps == [16, 32, 48, 64, 80, 96]
+
+
+def test_logger_drops_rows_past_the_resume_step_and_merges_same_step_dumps(tmp_path):
+    log = Logger(tmp_path, stdout=False, tensorboard=False)
+    for step in (10, 20, 30):
+        log.record("a", step)
+        log.dump(step)
+    log.record("eval/x", 1.0)
+    log.dump(30)  # the final evaluation at the last step joins that row
+    log.close()
+    assert (tmp_path / "progress.csv").read_text().splitlines() == [
+        "time/total_timesteps,a,eval/x", "10.0,10.0,", "20.0,20.0,", "30.0,30.0,1.0"]
+
+    log = Logger(tmp_path, stdout=False, tensorboard=False, resume_step=20)
+    assert log.dropped_rows == 1
+    log.record("a", 25)
+    log.dump(30)
+    assert (tmp_path / "progress.csv").read_text().splitlines() == [
+        "time/total_timesteps,a,eval/x", "10.0,10.0,", "20.0,20.0,", "30.0,25.0,"]
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+# ---------------------------------------------------------------------------------------- 3. damaged last.pt
+def test_resume_falls_back_to_the_newest_readable_checkpoint(run, capsys):
+    last = run / "checkpoints" / "last.pt"
+    last.write_bytes(last.read_bytes()[: last.stat().st_size // 2])  # truncated mid-write
+    assert main(["train", "--resume", str(run), "--set", "train.total_timesteps=96", *TINY]) == 0
+    warnings = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("warning: ")]
+    assert len(warnings) == 1
+    assert str(last) in warnings[0] and "truncated or corrupt" in warnings[0]
+    assert str(run / "checkpoints" / "ckpt_000000000064.pt") in warnings[0]
+    assert agents.load(last).num_timesteps == 96
+    assert_increasing(steps_logged(run))
+
+
+def test_resume_with_no_readable_checkpoint_is_one_error(run, capsys):
+    for ckpt in (run / "checkpoints").glob("*.pt"):
+        ckpt.write_bytes(ckpt.read_bytes()[:100])
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--resume", str(run), *TINY])
+    assert exc.value.code == 2
+    err = one_error_line(capsys)
+    assert "no readable checkpoint" in err and "last.pt" in err and "ckpt_000000000064.pt" in err
+
+
+# ---------------------------------------------------------------------------------------- 4. bad settings
+BAD_SETTINGS = ["agent.hyperparams.learning_rate=fast", "agent.hyperparams.learning_rate=-1",
+                "agent.hyperparams.actor_hidden=512", "env.kwargs.motion=walk", "train.device=cdua",
+                "train.seed=-3", "agent.hyperparams.n_steps=[32]"]
+
+
+@pytest.mark.parametrize("setting", BAD_SETTINGS)
+def test_bad_setting_is_one_error_and_overwrite_keeps_the_old_run(setting, run, capsys):
+    before = snapshot(run)
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=64", *TINY, "--set", setting,
+              "--run-dir", str(run), "--overwrite"])
+    assert exc.value.code == 2
+    one_error_line(capsys)
+    assert snapshot(run) == before
+
+
+@pytest.mark.parametrize("setting", ["train.device=cdua", "agent.hyperparams.learning_rate=fast"])
+def test_bad_setting_on_resume_records_nothing(setting, run, capsys):
+    config = (run / "config.yaml").read_text()
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--resume", str(run), "--set", setting, *TINY])
+    assert exc.value.code == 2
+    one_error_line(capsys)
+    assert (run / "config.yaml").read_text() == config  # the bad value is not written into the run
+
+
+@pytest.mark.parametrize("argv", [["--num-envs", "-2"], ["--device", "cdua"]])
+def test_eval_bad_options_are_one_error(argv, base_run, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["eval", str(base_run), "--no-progress", *argv])
+    assert exc.value.code == 2
+    assert argv[0] in one_error_line(capsys)
+
+
+# ---------------------------------------------------------------------------------------- 5. failed starts
+def test_failed_start_leaves_no_run_directory(tmp_path, capsys):
+    run = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "demo_walk_ppo", "--set", "env.kwargs.motions=wakl", "--run-dir", str(run), *TINY])
+    assert exc.value.code == 2 and "wakl" in one_error_line(capsys)
+    assert not run.exists()
+    assert main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=16", "--run-dir", str(run), *TINY]) == 0
+
+
+def test_crash_before_anything_was_written_removes_the_new_run_directory(tmp_path, monkeypatch):
+    run = tmp_path / "run"
+    fail_on_update(monkeypatch, 1, RuntimeError("a bug"))
+    with pytest.raises(RuntimeError, match="a bug"):
+        main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=64", "--run-dir", str(run), *TINY])
+    assert not run.exists()
+
+
+def test_leftover_of_a_failed_start_is_not_sent_to_resume(tmp_path, capsys):
+    """What older versions left: config.yaml and empty subdirectories. --resume cannot help it."""
+    run = tmp_path / "run"
+    for sub in ("checkpoints", "logs/tb", "videos"):
+        (run / sub).mkdir(parents=True)
+    (run / "config.yaml").write_text("{}\n")
+    argv = ["train", "demo_walk_ppo", "--set", "train.total_timesteps=16", "--run-dir", str(run), *TINY]
+    with pytest.raises(SystemExit):
+        main(argv)
+    err = one_error_line(capsys)
+    assert "--overwrite" in err and "--resume" not in err
+    assert main(argv + ["--overwrite"]) == 0
+
+
+# ---------------------------------------------------------------------------------------- 6. temp files
+def test_stale_temp_files_are_removed_on_resume(run, capsys):
+    ckpts = run / "checkpoints"
+    stale = [ckpts / ".last.pt.x1y2z3.tmp", ckpts / ".ckpt_000000000096.pt.a1b2c3.tmp"]
+    for path in stale:
+        path.write_bytes(b"half a checkpoint")
+    assert main(["train", "--resume", str(run), "--set", "train.total_timesteps=80", *TINY]) == 0
+    assert not any(p.exists() for p in stale)
+    removed = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("removed ")]
+    assert len(removed) == 1 and all(p.name in removed[0] for p in stale)

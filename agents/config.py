@@ -60,10 +60,21 @@ def _convert(name: str, value: Any, hint: Any) -> Any:
             return None
         (inner,) = [a for a in args if a is not type(None)]
         return _convert(name, value, inner)
+    kind = "a list" if origin is list else getattr(hint, "__name__", str(hint))
     if value is None:
-        raise TypeError(f"{name} must be {getattr(hint, '__name__', hint)}, got None")
+        raise TypeError(f"{name} must be {kind}, got None")
     if origin is list:
+        if not isinstance(value, (list, tuple)):
+            raise TypeError(f"{name} must be a list such as [512, 256], got {value!r}")
         return [_convert(name, v, args[0]) for v in value]
     if hint in (int, float, bool):
-        return hint(value)
+        # Only lossless spellings: 10 for a float, 1e6 for an int, never "fast", 3.7 or [32].
+        if isinstance(value, bool) and hint is not bool or not isinstance(value, (int, float, bool)):
+            raise TypeError(f"{name} must be {kind}, got {value!r}")
+        converted = hint(value)
+        if converted != value:
+            raise TypeError(f"{name} must be {kind}, got {value!r}")
+        return converted
+    if hint is str and not isinstance(value, str):
+        raise TypeError(f"{name} must be a string, got {value!r}")
     return value

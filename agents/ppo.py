@@ -394,9 +394,11 @@ class PPO:
         pass
 
     # ------------------------------------------------------------------ persistence
-    def save(self, path: str | Path) -> Path:
+    def save(self, path: str | Path, optimizer: bool = True) -> Path:
         """One self-contained file: weights, normalisers, optimiser, hyperparameters, step count,
-        env id and kwargs (when plain data), RNG state and library versions. Written atomically."""
+        env id and kwargs (when plain data), RNG state and library versions. Written atomically.
+        `optimizer=False` leaves the optimiser's moments out (a third of the size): a policy to
+        ship and act with; training from it starts the optimiser afresh."""
         env_kwargs = _plain(self.env_kwargs)
         dropped = sorted(set(self.env_kwargs) - set(env_kwargs))
         if dropped:
@@ -410,7 +412,7 @@ class PPO:
             "env": {"id": self.env_id, "kwargs": env_kwargs,
                     "n_envs": None if self.env is None else self.env.num_envs},
             "policy": self.policy.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
+            "optimizer": self.optimizer.state_dict() if optimizer else None,
             "num_timesteps": self.num_timesteps,
             "iteration": self.iteration,
             "episodes": [[float(r), int(n)] for r, n in self.episodes],
@@ -440,7 +442,8 @@ class PPO:
         box = gym.spaces.Box(np.array(sp["action_low"], np.float32), np.array(sp["action_high"], np.float32))
         agent._build(sp["obs_dim"], box, policy)
         agent.policy.load_state_dict(ckpt["policy"])
-        agent.optimizer.load_state_dict(ckpt["optimizer"])
+        if ckpt["optimizer"] is not None:  # None: a policy saved to ship (save(optimizer=False))
+            agent.optimizer.load_state_dict(ckpt["optimizer"])
         agent.num_timesteps, agent.iteration = ckpt["num_timesteps"], ckpt["iteration"]
         agent.episodes.extend(tuple(e) for e in ckpt["episodes"])
         agent.env_id, agent.env_kwargs = ckpt["env"]["id"], dict(ckpt["env"]["kwargs"] or {})

@@ -423,7 +423,11 @@ def find_checkpoint(run_or_ckpt: str | os.PathLike, which: str = "best") -> Path
     if path.is_file():
         return path
     if not path.is_dir():
-        raise RecipeError(f"no checkpoint or run directory at {path}")
+        shipped = pretrained_checkpoints()
+        if str(run_or_ckpt) in shipped:
+            return shipped[str(run_or_ckpt)]
+        raise RecipeError(f"no checkpoint or run directory at {path}; shipped policies: "
+                          f"{', '.join(shipped) or 'none'}")
     directory = path / "checkpoints" if (path / "checkpoints").is_dir() else path
     candidates = ([directory / "best.pt"] if which == "best" else []) + [directory / "last.pt"]
     for candidate in candidates:
@@ -434,6 +438,15 @@ def find_checkpoint(run_or_ckpt: str | os.PathLike, which: str = "best") -> Path
     if numbered:
         return numbered[-1]
     raise RecipeError(f"no checkpoint in {directory} (looked for best.pt, last.pt and ckpt_*.pt)")
+
+
+PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
+
+
+def pretrained_checkpoints() -> dict[str, Path]:
+    """{name: path} of the policies shipped in the package (agents/pretrained/<name>.pt), which
+    `smpl-envs eval NAME` and `smpl-envs record NAME` find by name when no such path exists."""
+    return {p.stem: p for p in sorted(PRETRAINED_DIR.glob("*.pt"))}
 
 
 def run_dir_of(checkpoint: str | os.PathLike) -> Path | None:
@@ -448,4 +461,4 @@ def run_dir_of(checkpoint: str | os.PathLike) -> Path | None:
 __all__ = ["RecipeError", "load_recipe", "apply_overrides", "validate_recipe", "parse_override", "parse_value",
            "set_dotted", "make_run_dir", "check_run_dir_free", "is_unused_run_dir", "read_config", "write_config",
            "find_checkpoint", "run_dir_of",
-           "available_recipes", "recipe_dirs", "resolve_recipe_path", "accepted_hyperparams"]
+           "available_recipes", "recipe_dirs", "resolve_recipe_path", "accepted_hyperparams", "pretrained_checkpoints"]

@@ -80,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="continue a run from its checkpoints/last.pt up to train.total_timesteps")
     p.add_argument("--device", help="torch device (auto, cpu, cuda ...); overrides train.device")
     p.add_argument("--quiet", action="store_true", help="no per-iteration log table on stdout")
+    p.add_argument("--update-threads", type=int, default=None, metavar="M",
+                   help="torch CPU threads during the network update, when the simulation is idle "
+                        "(default: as --threads); e.g. --threads 1 --update-threads 2 on a 2-core CPU")
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("eval", parents=[common], help="evaluate a run or checkpoint (PHC protocol)")
@@ -272,7 +275,8 @@ def _new_agent(args, recipe: dict):
     # No logs yet: the run directory does not exist until the agent has been built (_attach_logger).
     return AGENTS[agent["class"]](
         env["id"], n_envs=env["num_envs"], env_kwargs=env["kwargs"], seed=train["seed"], device=train["device"],
-        verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False, **agent["hyperparams"])
+        verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False, update_threads=args.update_threads,
+        **agent["hyperparams"])
 
 
 def _attach_logger(agent, run: Path, resume_step: int | None = None) -> None:
@@ -351,7 +355,8 @@ def _resume_agent(args, recipe: dict, checkpoint: Path, overrides: list[str]):
     changed = {name: recipe["agent"]["hyperparams"][name] for name in names}
     return agents.load(checkpoint, env="auto", device=recipe["train"]["device"],
                        n_envs=recipe["env"]["num_envs"], env_kwargs=recipe["env"]["kwargs"],
-                       verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False, **changed)
+                       verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False,
+                       update_threads=args.update_threads, **changed)
 
 
 def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool):

@@ -15,6 +15,7 @@ and every step), `_shape_rewards` (before GAE), `_update_extra` (after the polic
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 import warnings
@@ -123,9 +124,16 @@ class PPO:
 
     def __init__(self, env: str | gym.Env | VectorEnv | None, *, n_envs: int = 1, env_kwargs: dict | None = None,
                  policy: Policy | None = None, device: str | torch.device = "auto", verbose: int = 1,
-                 log_dir: str | Path | None = None, tensorboard: bool = True, **hyperparams):
+                 log_dir: str | Path | None = None, tensorboard: bool = True, update_threads: int | None = None,
+                 **hyperparams):
         self.config = self.config_class.from_kwargs(type(self).__name__, hyperparams)
         self.device = resolve_device(device)
+        # Torch CPU threads while updating: the simulator's threads sit idle then, so the update
+        # may use every core even when collection runs torch on one (None: leave torch's setting).
+        if update_threads is not None and (isinstance(update_threads, bool) or not isinstance(update_threads, int)
+                                           or update_threads < 1):
+            raise ValueError(f"update_threads must be a positive integer or None, got {update_threads!r}")
+        self.update_threads = update_threads
         self.verbose = verbose
         self.env = self.env_id = None
         self.env_kwargs: dict = {}
@@ -255,7 +263,8 @@ class PPO:
             while self.num_timesteps < target:
                 self._set_learning_rate(target)
                 buffer = self._collect()
-                self._update(buffer)
+                with _torch_threads(self.update_threads):
+                    self._update(buffer)
                 self.iteration += 1
                 bar.update(self.num_timesteps - bar.n)
                 if self.episodes:
@@ -459,6 +468,19 @@ class PPO:
         agent._load_extra_state(ckpt["extra"])
         agent.set_logger(log_dir, tensorboard)
         return agent
+
+
+@contextlib.contextmanager
+def _torch_threads(n: int | None):
+    if n is None or n == torch.get_num_threads():
+        yield
+        return
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def _plain(x: Any) -> Any:

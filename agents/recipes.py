@@ -48,6 +48,7 @@ META_KEYS = ("recipe_name", "recipe_path", "profile", "overrides")
 RESERVED_HYPERPARAMS = {
     "n_envs": "env.num_envs", "env_kwargs": "env.kwargs", "seed": "train.seed", "device": "train.device",
     "verbose": "the command line (--quiet)", "log_dir": "the run directory", "tensorboard": "the run directory",
+    "update_threads": "the command line (--update-threads)",
 }
 
 # A float YAML 1.1 reads as a string because it lacks a dot ("3e-4", "1e6").

@@ -33,10 +33,11 @@ from agents import AGENTS
 from agents.recipes import load_recipe
 
 
-def make_agent(recipe: dict, worlds: int, device: str):
+def make_agent(recipe: dict, worlds: int, device: str, update_threads: int | None):
     env, agent = recipe["env"], recipe["agent"]
     return AGENTS[agent["class"]](env["id"], n_envs=worlds, env_kwargs=env["kwargs"], seed=recipe["train"]["seed"],
-                                  device=device, verbose=0, log_dir=None, tensorboard=False, **agent["hyperparams"])
+                                  device=device, verbose=0, log_dir=None, tensorboard=False,
+                                  update_threads=update_threads, **agent["hyperparams"])
 
 
 def train_rate(agent, iterations: int) -> float:
@@ -66,6 +67,8 @@ def main() -> None:
     p.add_argument("--iterations", type=int, default=5, help="timed training iterations per repeat")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    p.add_argument("--update-threads", type=int, default=None,
+                   help="torch CPU threads during the update only (default: as --threads)")
     p.add_argument("--device", default="cpu")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
@@ -76,14 +79,15 @@ def main() -> None:
 
     env = gym.make_vec(env_id, num_envs=args.worlds, **ppo_recipe["env"]["kwargs"])
     env.reset(seed=0)
-    ppo = make_agent(ppo_recipe, args.worlds, args.device)
-    amp = make_agent(amp_recipe, args.worlds, args.device)
+    ppo = make_agent(ppo_recipe, args.worlds, args.device, args.update_threads)
+    amp = make_agent(amp_recipe, args.worlds, args.device, args.update_threads)
     steps = ppo.config.n_steps * args.iterations  # per world: as many as PPO collects per repeat
     for agent in (ppo, amp):  # warm-up: the first reset and the first iteration's allocations
         agent.learn(agent.config.n_steps * args.worlds, progress_bar=False)
     env_rate(env, min(steps, 8), np.random.default_rng(1))
 
-    print(f"{os.cpu_count()} CPU cores, torch {torch.__version__} on {args.threads} thread(s), "
+    print(f"{os.cpu_count()} CPU cores, torch {torch.__version__} on {args.threads} thread(s) "
+          f"({args.update_threads or args.threads} while updating), "
           f"MuJoCo {mujoco.__version__}; {env_id} at {args.worlds} worlds; {args.iterations} iterations "
           f"({ppo.config.n_steps} steps each) per repeat, {args.repeats} repeats (medians)", flush=True)
     rng = np.random.default_rng(0)
@@ -96,9 +100,9 @@ def main() -> None:
     env_s, ppo_s, amp_s = np.median(rates, 0)
     ppo_env, amp_ppo = np.median(rates[:, 1] / rates[:, 0]), np.median(rates[:, 2] / rates[:, 1])
     print(f"PPO/env {ppo_env:.2f}, AMP/PPO {amp_ppo:.2f}")
-    print("| id | worlds | torch threads | env steps/s | PPO samples/s | AMP samples/s | PPO/env | AMP/PPO |")
+    print("| id | worlds | torch threads (update) | env steps/s | PPO samples/s | AMP samples/s | PPO/env | AMP/PPO |")
     print("|---|---|---|---|---|---|---|---|")
-    print(f"| `{env_id}` | {args.worlds} | {args.threads} | {env_s:.0f} | {ppo_s:.0f} | {amp_s:.0f} "
+    print(f"| `{env_id}` | {args.worlds} | {args.threads} ({args.update_threads or args.threads}) | {env_s:.0f} | {ppo_s:.0f} | {amp_s:.0f} "
           f"| {ppo_env:.2f} | {amp_ppo:.2f} |")
     for closeable in (env, ppo, amp):
         closeable.close()

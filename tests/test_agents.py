@@ -343,3 +343,23 @@ def test_amp_reaches_the_clips_only_through_the_documented_motion_lib():
     assert "amp/disc_loss" in model.logger.last
     vec.close()
     single.close()
+
+
+def test_update_threads_apply_to_the_update_only():
+    import torch
+
+    before = torch.get_num_threads()
+    seen = []
+    model = PPO("Pendulum-v1", n_envs=2, n_steps=8, batch_size=16, n_epochs=1, verbose=0, device="cpu",
+                update_threads=before + 1)
+    original = model._update
+
+    def spy(buf):
+        seen.append(torch.get_num_threads())
+        return original(buf)
+
+    model._update = spy
+    model.learn(32, progress_bar=False)
+    assert seen and set(seen) == {before + 1} and torch.get_num_threads() == before
+    with pytest.raises(ValueError, match="update_threads"):
+        PPO("Pendulum-v1", update_threads=0, verbose=0)

@@ -8,6 +8,16 @@ from smpl_envs.motion import RawMotion
 from smpl_envs.rotations import quat_from_euler_xyz, yaw_quat
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _restore_torch_threads():
+    """The CLI's --threads sets torch's process-wide pool; each module leaves it as it found it."""
+    import torch
+
+    n = torch.get_num_threads()
+    yield
+    torch.set_num_threads(n)
+
+
 @pytest.fixture(autouse=True)
 def _private_cache(tmp_path, monkeypatch):
     """Every test gets its own MotionLib cache, so no test sees another's (or the user's)."""

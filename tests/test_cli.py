@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
 import yaml
 
 import agents
@@ -26,14 +25,6 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 TINY = ["--set", "env.num_envs=4", "--set", "agent.hyperparams.n_steps=16",
         "--set", "agent.hyperparams.batch_size=64", "--set", "agent.hyperparams.actor_hidden=[32,32]",
         "--set", "agent.hyperparams.critic_hidden=[32,32]", "--no-progress", "--quiet", "--threads", "1"]
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _restore_torch_threads():
-    """--threads sets torch's process-wide pool; leave it as the other test modules found it."""
-    n = torch.get_num_threads()
-    yield
-    torch.set_num_threads(n)
 
 
 def read_rows(run: Path) -> list[dict]:

@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 
 import pytest
-import torch
 
 import agents
 from agents import PPO
@@ -27,14 +26,6 @@ STEPS_PER_ITERATION = 16  # env.num_envs x n_steps below
 TINY = ["--set", "env.num_envs=2", "--set", "agent.hyperparams.n_steps=8", "--set", "agent.hyperparams.batch_size=16",
         "--set", "agent.hyperparams.actor_hidden=[32,32]", "--set", "agent.hyperparams.critic_hidden=[32,32]",
         "--set", "video.steps=0", "--no-progress", "--quiet", "--threads", "1"]
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _restore_torch_threads():
-    """--threads sets torch's process-wide pool; leave it as the other test modules found it."""
-    n = torch.get_num_threads()
-    yield
-    torch.set_num_threads(n)
 
 
 @pytest.fixture(scope="module")

@@ -25,8 +25,10 @@ the task module knows what a task's success is. Two protocols cover the tasks:
 `EpisodeProtocol` (goal-directed tasks: speed, reach, strike ...):
 
 * `episodes` episodes (default 32) run to their end (a fall, the task's own termination, or the
-  time limit) from seeded resets, the env's starts and targets as in training, deterministic
-  policy. Each world runs one episode after another; results depend on (seed, num_envs) only.
+  time limit), the env's starts and targets as in training, deterministic policy. They run in
+  waves of `num_envs` worlds, each wave from a reset of every world seeded `seed + wave`; nothing
+  resets inside a wave, so every checkpoint meets the same starts and targets (for a given
+  `seed` and `num_envs`).
 * Every step, the task's `info` entries named by the protocol are logged per world; at the end of
   an episode the task's `episode_metrics(log)` turns the log into that episode's row.
 * The summary is the mean of every row metric over episodes, plus `score`: the mean task reward
@@ -67,7 +69,7 @@ class EvalResult:
     def to_json(self) -> str:
         if self.kind == "clips":
             return metrics.to_json(self.rows, self.summary)
-        return json.dumps({"episodes": self.rows, "summary": self.summary}, indent=2, default=_plain)
+        return json.dumps(_finite({"episodes": self.rows, "summary": self.summary}), indent=2, default=_plain)
 
     def save(self, path) -> Path:
         """Write `to_json()` to `path` (parent directories created); returns the path."""
@@ -78,6 +80,17 @@ class EvalResult:
 
     def __str__(self) -> str:
         return self.table()
+
+
+def _finite(x):
+    """JSON has no NaN: undefined values (e.g. no target to count) become null."""
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite(v) for v in x]
+    if isinstance(x, (float, np.floating)) and not np.isfinite(x):
+        return None
+    return x
 
 
 def _plain(x):
@@ -225,6 +238,9 @@ class EpisodeProtocol(EvalProtocol):
 
 
 def _check_disabled_autoreset(u) -> None:
+    if hasattr(u, "vec"):
+        raise ValueError("evaluate needs an env id or a vector env (gym.make_vec(..., autoreset_mode='Disabled')), "
+                         "not a one-world gym.make env")
     mode = u.metadata.get("autoreset_mode")
     if mode is None or AutoresetMode(getattr(mode, "value", mode)) != AutoresetMode.DISABLED:
         raise ValueError(f"env must be made with autoreset_mode='Disabled' (evaluate resets worlds "
@@ -372,41 +388,37 @@ def _finish_clip(lib, motion_id: int, sim: list, ref: list, broke: bool, thresho
 # ---------------------------------------------------------------------------------------- episodes
 def _run_episodes(policy: Callable, env, protocol: EpisodeProtocol, episodes: int, seed: int,
                   progress: bool) -> list[dict]:
+    # Episodes run in waves of num_envs, each wave from a reset of every world with its own seed
+    # (seed, seed + 1, ...). Nothing resets inside a wave, so the starts and targets a wave draws
+    # do not depend on when the policy falls: two checkpoints meet the same episodes.
     u = getattr(env, "unwrapped", env)
     n, limit = u.num_envs, u.max_episode_steps
-    logs: list[dict[str, list]] = [_new_log(protocol) for _ in range(n)]
-    active = np.zeros(n, bool)
     rows: list[dict] = []
-    started = min(n, episodes)
-    obs, _ = env.reset(seed=seed)
-    obs = np.array(obs, copy=True)
-    active[:started] = True
     bar = tqdm(total=episodes, desc="evaluate", unit="episode", disable=not progress)
     try:
-        while active.any():
-            obs, reward, terminated, truncated, info = env.step(_act(policy, obs))
+        for wave in range(-(-episodes // n)):
+            count = min(n, episodes - len(rows))
+            obs, _ = env.reset(seed=seed + wave)
             obs = np.array(obs, copy=True)
-            terminated, truncated = np.asarray(terminated, bool), np.asarray(truncated, bool)
-            for w in np.flatnonzero(active):
-                log = logs[w]
-                log["reward"].append(float(reward[w]))
-                for key in protocol.step_keys:
-                    log[key].append(np.asarray(info[key])[w])
-            done = active & (terminated | truncated)
-            for w in np.flatnonzero(done):
-                rows.append(_finish_episode(protocol, logs[w], terminated[w], truncated[w],
-                                            bool(np.asarray(info["diverged"])[w]), limit))
-                logs[w] = _new_log(protocol)
-                bar.update(1)
-            more = np.flatnonzero(done)[:max(episodes - started, 0)]
-            active[done] = False
-            if len(more):
-                started += len(more)
-                mask = np.zeros(n, bool)
-                mask[more] = True
-                new_obs, _ = env.reset(options={"reset_mask": mask})
-                obs[more] = np.asarray(new_obs)[more]
-                active[more] = True
+            logs = [_new_log(protocol) for _ in range(count)]
+            finished: dict[int, dict] = {}
+            active = np.zeros(n, bool)
+            active[:count] = True
+            while active.any():
+                obs, reward, terminated, truncated, info = env.step(_act(policy, obs))
+                obs = np.array(obs, copy=True)
+                terminated, truncated = np.asarray(terminated, bool), np.asarray(truncated, bool)
+                for w in np.flatnonzero(active):
+                    logs[w]["reward"].append(float(reward[w]))
+                    for key in protocol.step_keys:
+                        logs[w][key].append(np.asarray(info[key])[w])
+                done = active & (terminated | truncated)
+                for w in np.flatnonzero(done):
+                    finished[w] = _finish_episode(protocol, logs[w], terminated[w], truncated[w],
+                                                  bool(np.asarray(info["diverged"])[w]), limit)
+                    bar.update(1)
+                active &= ~done
+            rows.extend(finished[w] for w in range(count))
     finally:
         bar.close()
     return rows

@@ -108,8 +108,10 @@ def test_speed_target_resamples_on_schedule():
     dirs = [info["target_dir"].copy()]
     for _ in range(12):
         dirs.append(env.step(np.zeros((2, 69)))[4]["target_dir"].copy())
+    # Redrawn after the reward of steps 5 and 10: that step's info still describes the target its
+    # reward used, the next one the new target.
     changed = [t for t in range(1, 13) if not np.array_equal(dirs[t], dirs[t - 1])]
-    assert changed == [5, 10]
+    assert changed == [6, 11]
     # The observation carries the target in the heading frame (a unit vector) and the speed.
     obs = env.step(np.zeros((2, 69)))[0]
     np.testing.assert_allclose(np.linalg.norm(obs[:, 358:360], axis=-1), 1.0, atol=1e-5)
@@ -135,7 +137,7 @@ def test_reach_targets_lie_in_range_and_resample_on_schedule():
     obs, info = env.reset(seed=0)
     for t in range(1, 7):
         obs, *_, info = env.step(np.zeros((16, 69)))
-        assert (info["target_index"] == t // 3).all()
+        assert (info["target_index"] == (t - 1) // 3).all()  # redrawn after the reward of steps 3, 6
         rel = obs[:, 358:361]  # target relative to the pelvis, heading frame
         assert (np.abs(rel[:, :2]) <= 1.0 + 0.05).all()  # drawn within +-1 m, the pelvis moved little
         assert ((info["target_pos"][:, 2] >= 0.2) & (info["target_pos"][:, 2] <= 2.0)).all()
@@ -304,3 +306,43 @@ def test_beginning_share_starts_that_fraction_at_the_first_frame():
     env.close()
     with pytest.raises(ValueError, match="beginning_share"):
         gym.make_vec("SMPL/Speed-v0", num_envs=1, beginning_share=1.5)
+
+
+def test_reach_metrics_leave_out_a_target_cut_short_by_the_time_limit():
+    from smpl_envs.envs.reach import reach_episode_metrics
+
+    log = {"target_index": np.array([0, 0, 1, 1, 2]), "hand_distance": np.array([0.5, 0.05, 0.3, 0.2, 0.4]),
+           "truncated": True, "terminated": False}
+    assert reach_episode_metrics(log)["targets_reached"] == 0.5       # target 2 had one step
+    log["truncated"], log["terminated"] = False, True
+    assert reach_episode_metrics(log)["targets_reached"] == pytest.approx(1 / 3)  # a fall: it counts
+
+
+def test_episode_evaluation_meets_the_same_episodes_whatever_the_policy():
+    starts = {}
+    for name, policy in (("zero", lambda obs: np.zeros((len(obs), 69))),
+                         ("flail", lambda obs: np.random.default_rng(len(obs)).uniform(-1, 1, (len(obs), 69)))):
+        env = gym.make_vec("SMPL/Speed-v0", num_envs=2, motions=["walk", "run"], autoreset_mode="Disabled")
+        seen = []
+        original = env.reset
+
+        def reset(**kwargs):
+            out = original(**kwargs)
+            seen.append((out[1]["motion_id"].copy(), out[1]["target_speed"].copy()))
+            return out
+
+        env.reset = reset
+        smpl_envs.evaluate(policy, env, episodes=5, progress=False)
+        starts[name] = seen
+        env.close()
+    assert len(starts["zero"]) == 3  # waves of 2, 2 and 1
+    for (a_ids, a_speed), (b_ids, b_speed) in zip(starts["zero"], starts["flail"]):
+        np.testing.assert_array_equal(a_ids, b_ids)
+        np.testing.assert_array_equal(a_speed, b_speed)
+
+
+def test_evaluate_refuses_a_one_world_env_clearly():
+    env = gym.make("SMPL/Speed-v0")
+    with pytest.raises(ValueError, match="vector env"):
+        smpl_envs.evaluate(lambda obs: np.zeros((len(obs), 69)), env, progress=False)
+    env.close()

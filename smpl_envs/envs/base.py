@@ -14,10 +14,11 @@ The task interface (all batched over worlds; `ids` are world indices):
 | `_configure(spec)` | before compiling | add bodies, geoms, sensors or terrain to the `MjSpec` |
 | `_reset_task(ids, options)` | on reset of `ids` | full-model (qpos, qvel) of their start states; resets their task state |
 | `_ctrl(actions)` | every step | PD targets (N, 69) from actions in [-1, 1] (default: `action_scale * a`) |
-| `_advance(active)` | after physics | task clocks and schedules (resample a target every k steps) |
+| `_advance(active)` | after physics | task clocks the reward needs (the reference frame) |
 | `_evaluate(body, heading)` | after `_advance` | (reward, {term: (N,)}, terminated, truncated) |
-| `_observe(body, heading)` | after `_evaluate` | observation (N, 358 + task columns), self observation first |
-| `_task_info(body)` | with the observation | extra `info` entries {name: (N, ...)} |
+| `_task_info(body)` | after `_evaluate`, and after a reset | extra `info` entries {name: (N, ...)} of the state the reward measured |
+| `_schedule(active)` | after `_task_info` | redraw what is due (a target every k steps): the next observation shows it, the next reward uses it |
+| `_observe(body, heading)` | last | observation (N, 358 + task columns), self observation first |
 | `_markers(world)` | on render | [(positions (K, 3), rgba, radius)] drawn into the frame |
 | `evaluation` (class attribute) | `smpl_envs.evaluate`, `smpl-envs eval` | the task's evaluation protocol (`smpl_envs.evaluation`) |
 
@@ -96,8 +97,10 @@ def check_range(name: str, value, low: float = -np.inf, high: float = np.inf) ->
 
 
 def fallen(body: BodyState, height: float = 0.15, head_height: float = 0.3):
-    """(N,) a fall (REFERENCE section 5): a body other than the feet below `height` m, or the head
-    below `head_height` m."""
+    """(N,) a fall: a body origin other than the feet' below `height` m, or the head's below
+    `head_height` m. REFERENCE section 5 also asks for ground contact; heights alone are cheaper
+    and, this close to the floor, a body touches it or is about to (a hand reaching below
+    0.15 m counts as a fall)."""
     z = body.pos[..., 2]
     low = z < height
     low[:, FEET] = False
@@ -191,7 +194,10 @@ class HumanoidVecEnv(VectorEnv):
         return actions * self.action_scale
 
     def _advance(self, active: np.ndarray | None) -> None:
-        """Advance task clocks and schedules of the worlds that stepped (`active`; None: all)."""
+        """Advance the task clocks of the worlds that stepped (`active`; None: all)."""
+
+    def _schedule(self, active: np.ndarray | None) -> None:
+        """Redraw what is due in the worlds that stepped, after this step's reward."""
 
     def _evaluate(self, body: BodyState, heading) -> tuple[np.ndarray, dict, np.ndarray, np.ndarray]:
         raise NotImplementedError
@@ -261,7 +267,7 @@ class HumanoidVecEnv(VectorEnv):
         body = self.sim.bodies
         heading = heading_rotation(body.rot[:, 0])
         obs = self._observe(body, heading)
-        info = self._info(body, obs, None, np.zeros(self.num_envs, bool))
+        info = self._info(body, obs, None, np.zeros(self.num_envs, bool), self._task_info(body))
         obs = self._finish_obs(obs)
         if mask is not None:
             # Worlds left running keep their observation; only the reset ones change.
@@ -298,6 +304,8 @@ class HumanoidVecEnv(VectorEnv):
         body = self.sim.bodies
         heading = heading_rotation(body.rot[:, 0])
         reward, terms, terminated, truncated = self._evaluate(body, heading)
+        task_info = self._task_info(body)
+        self._schedule(running)
         terminated = terminated | diverged
         if self.max_episode_steps is not None:
             truncated = truncated | (self.elapsed >= self.max_episode_steps)
@@ -310,7 +318,7 @@ class HumanoidVecEnv(VectorEnv):
                 truncated &= running
         truncated &= ~terminated
         obs = self._observe(body, heading)
-        info = self._info(body, obs, terms, diverged)
+        info = self._info(body, obs, terms, diverged, task_info)
         obs = self._finish_obs(obs)
 
         done = terminated | truncated
@@ -318,12 +326,12 @@ class HumanoidVecEnv(VectorEnv):
             self._needs_reset = done
         elif self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
             ids = np.flatnonzero(done)
-            info["final_obs"], info["_final_obs"] = obs.copy(), done
             info["final_info"], info["_final_info"] = {k: v.copy() for k, v in info.items()}, done
+            info["final_obs"], info["_final_obs"] = obs.copy(), done
             self._reset_worlds(ids, {})
             body = self.sim.bodies
             fresh_obs = self._observe(body, heading_rotation(body.rot[:, 0]))
-            fresh = self._info(body, fresh_obs, None, diverged)
+            fresh = self._info(body, fresh_obs, None, diverged, self._task_info(body))
             obs[ids] = self._finish_obs(fresh_obs[ids])
             for k, v in fresh.items():
                 if k != "diverged":  # the flag reports this step's event in every mode
@@ -353,17 +361,20 @@ class HumanoidVecEnv(VectorEnv):
             obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
         return obs
 
-    def _info(self, body: BodyState, obs, terms: dict | None, diverged: np.ndarray) -> dict[str, Any]:
+    def _info(self, body: BodyState, obs, terms: dict | None, diverged: np.ndarray, task_info: dict) -> dict[str, Any]:
         info = {f"reward_{k}": v for k, v in (terms or {}).items()}
         info.update(body_pos=body.pos.astype(np.float32), diverged=diverged,
                     amp_obs=amp_features(body, proprio=obs[:, :PROPRIO_DIM]).astype(np.float32))
+        if diverged.any():  # a diverged world's state may be garbage: keep info finite, as obs
+            for key in ("body_pos", "amp_obs"):
+                info[key] = np.nan_to_num(info[key], nan=0.0, posinf=0.0, neginf=0.0)
         lib = self.motion_lib
         if lib is not None:
             # The clip frame each world's pose came from at its last reset (AMP seeds its
             # discriminator history there); reference-following tasks report the current frame.
             info.update(motion_id=self.start_motion.copy(),
                         motion_time=(self.start_frame - lib.starts[self.start_motion]) * (1.0 / lib.fps))
-        info.update(self._task_info(body))
+        info.update(task_info)
         return info
 
     # ------------------------------------------------------------------ rendering

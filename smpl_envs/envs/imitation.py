@@ -174,7 +174,7 @@ class ImitationVecEnv(HumanoidVecEnv):
 
     def _task_info(self, body):
         return {"motion_id": self.ref.motion_id.copy(), "motion_time": self.ref.motion_time(),
-                "ref_body_pos": self.ref.current().pos}
+                "ref_body_pos": self.ref.current().pos.copy()}  # a copy: the array is cached
 
     def _markers(self, world):
         return [(self.motion_lib.body_pos[self.ref.frame[world]], MARKER_RGBA, 0.03)]

@@ -41,7 +41,7 @@ class ReferenceTracker:
         self.motion_id = np.zeros(num_worlds, np.int64)
         self.frame = np.zeros(num_worlds, np.int64)      # global frame the simulated state should match
         self.end_frame = np.zeros(num_worlds, np.int64)  # last frame of each world's clip
-        self._cache = None
+        self._cache: list = []
 
     def begin(self, ids: np.ndarray, motion_ids: np.ndarray, frames: np.ndarray) -> None:
         """Worlds `ids` start following clips `motion_ids` at global frames `frames`."""
@@ -66,13 +66,14 @@ class ReferenceTracker:
         return (self.frame - self.lib.starts[self.motion_id]) * (1.0 / self.lib.fps)
 
     def bodies(self, frames: np.ndarray) -> BodyState:
-        """Reference bodies at global `frames`. The frames observed as "next" in one step are the
-        frames rewarded in the following one, so the last lookup is cached."""
-        cached = self._cache
-        if cached is not None and np.array_equal(cached[0], frames):
-            return cached[1]
+        """Reference bodies at global `frames`. A step looks up the current frames (reward, info)
+        and the next ones (observation), and the next ones become the following step's current
+        ones, so the last two lookups are kept: one new lookup per step."""
+        for cached_frames, ref in self._cache:
+            if np.array_equal(cached_frames, frames):
+                return ref
         ref = self.lib.body_state(frames)
-        self._cache = (frames.copy(), ref)
+        self._cache = [self._cache[-1], (frames.copy(), ref)] if self._cache else [(frames.copy(), ref)]
         return ref
 
     def current(self) -> BodyState:

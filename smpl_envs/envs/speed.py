@@ -84,7 +84,7 @@ class SpeedVecEnv(GoalVecEnv):
         self._resample(ids)
         return qpos, qvel
 
-    def _advance(self, active):
+    def _schedule(self, active):
         due = self.schedule.due(self.elapsed, active)
         if len(due):
             self._resample(due)

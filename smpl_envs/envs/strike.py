@@ -93,7 +93,6 @@ class StrikeVecEnv(GoalVecEnv):
         joint = self.model.body_jntadr[mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "box")]
         q, v = self.model.jnt_qposadr[joint], self.model.jnt_dofadr[joint]
         self.box_qpos, self.box_qvel = slice(q, q + 7), slice(v, v + 6)
-        self.ever_toppled = np.zeros(self.num_envs, bool)
 
     def _configure(self, spec):
         # Parked far away; every reset places it.
@@ -120,7 +119,6 @@ class StrikeVecEnv(GoalVecEnv):
         box[:, 3:] = [1.0, 0.0, 0.0, 0.0]
         qpos[:, self.box_qpos] = box
         qvel[:, self.box_qvel] = 0.0
-        self.ever_toppled[ids] = False
         return qpos, qvel
 
     def box_state(self):
@@ -134,7 +132,6 @@ class StrikeVecEnv(GoalVecEnv):
         pos, rot, _, _ = self.box_state()
         up = rot[:, 2, 2]
         reward, terms = strike_reward(up, body.pos[:, 0], body.lin_vel[:, 0], pos)
-        self.ever_toppled |= up < TOPPLED
         touching = self.sim.sensordata > 0
         touching[:, STRIKERS] = False
         return reward, terms, self._fallen(body) | touching.any(-1), np.zeros(self.num_envs, bool)

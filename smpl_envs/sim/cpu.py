@@ -30,6 +30,9 @@ from ..humanoid.builder import HumanoidAddresses, humanoid_addresses
 
 # Speeds no humanoid motion reaches (m/s, rad/s): treat them as a diverged simulation.
 MAX_SPEED = 1.0e3
+# MuJoCo's warnings that come with its automatic reset of a world.
+_BAD_STATE = [int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                                 mujoco.mjtWarning.mjWARN_BADQACC)]
 
 
 class CPUSim:
@@ -71,6 +74,8 @@ class CPUSim:
         self._time = np.zeros(n)
         self._last_time = np.zeros(n)
         self._bad = np.zeros(n, bool)
+        self._warnings = np.zeros(n, np.int64)  # MuJoCo's bad qpos/qvel/qacc warnings so far
+        self._last_warnings = np.zeros(n, np.int64)
         threads = num_threads or min(os.cpu_count() or 1, num_worlds)
         self.num_threads = max(1, min(threads, num_worlds))
         self._slices = [s for s in np.array_split(np.arange(n), self.num_threads) if len(s)]
@@ -91,6 +96,7 @@ class CPUSim:
             d.qvel[:] = qvel[k]
             mujoco.mj_step1(self.model, d)
         self._last_time[ids] = 0.0
+        self._last_warnings[ids] = 0
         self.ctrl[ids] = 0.0
         self.actuator_force[ids] = 0.0
         self._gather(ids, elapsed=0.0)
@@ -131,14 +137,19 @@ class CPUSim:
             self._cvel[i] = d.cvel[b]
             self._com[i] = d.subtree_com[root]
             self._time[i] = d.time
+            self._warnings[i] = d.warning.number[_BAD_STATE].sum()
             if sensors:
                 self.sensordata[i] = d.sensordata
         # MuJoCo resets a world's data (time back to 0) on NaN or huge accelerations; beyond that,
         # non-finite or absurd speeds also count as divergence.
+        # A reset inside a step's first substep leaves the clock where it should be; the warning
+        # counters (cleared only by set_state's mj_resetData) still tell.
         speed = np.abs(self.qvel[ids]).max(-1)
         stepped = self._time[ids] - self._last_time[ids]
-        self._bad[ids] = (np.abs(stepped - elapsed) > 0.5 * self.model.opt.timestep) | ~(speed < MAX_SPEED)
+        self._bad[ids] = ((np.abs(stepped - elapsed) > 0.5 * self.model.opt.timestep) | ~(speed < MAX_SPEED)
+                          | (self._warnings[ids] > self._last_warnings[ids]))
         self._last_time[ids] = self._time[ids]
+        self._last_warnings[ids] = self._warnings[ids]
 
     @property
     def bodies(self) -> BodyState:

@@ -19,6 +19,8 @@ the task module knows what a task's success is. Two protocols cover the tasks:
   env's own early termination is switched off. A simulation that diverges also fails the clip.
 * Per clip, `smpl_envs.metrics.clip_metrics` turns the recorded simulated and reference body
   positions into success and the errors in mm; `metrics.summarize` aggregates them as PHC does.
+  `score` (the success rate minus 1e-6 x E_g-mpjpe over all frames tracked) ranks checkpoints:
+  between equal success rates, the lower error wins.
 * Clips run batched: each world takes the next clip from a queue whenever its current one ends,
   so the result does not depend on the number of worlds.
 
@@ -145,7 +147,7 @@ class EvalProtocol:
 class ClipProtocol(EvalProtocol):
     """PHC's imitation protocol (module docstring). Option: threshold (m)."""
 
-    key = "success_rate"
+    key = "score"  # success rate, ties broken by the lower E_g-mpjpe
     options = {"threshold": 0.5}
     train_only_kwargs = ("start", "max_episode_steps", "termination_distance")
 
@@ -186,7 +188,12 @@ class ClipProtocol(EvalProtocol):
 
     def run(self, policy, env, options, progress):
         rows = _run_clips(policy, env, options["threshold"], progress)
-        return EvalResult(rows, metrics.summarize(rows), "clips")
+        summary = metrics.summarize(rows)
+        # One number that ranks checkpoints: the success rate first; between equal rates, the
+        # lower global error over the frames tracked (mm, far below 1e6) wins.
+        error = summary.get("all_mpjpe_g")
+        summary["score"] = float(summary["success_rate"]) - (1e-6 * error if error is not None and np.isfinite(error) else 0.0)
+        return EvalResult(rows, summary, "clips")
 
 
 class EpisodeProtocol(EvalProtocol):

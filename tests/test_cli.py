@@ -293,7 +293,8 @@ def test_readme_demo_commands_run(tmp_path, monkeypatch):
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     line = next(ln for ln in readme.splitlines() if ln.startswith("pip install torch==2.13.0 && pip install -e . &&"))
     commands = [c.split() for c in line.split("&&")[2:]]
-    assert [c[:2] for c in commands] == [["smpl-envs", "train"], ["smpl-envs", "eval"], ["smpl-envs", "record"]]
+    assert [c[:2] for c in commands] == [["smpl-envs", "train"], ["smpl-envs", "eval"], ["smpl-envs", "record"],
+                                         ["smpl-envs", "record"]]
     monkeypatch.chdir(tmp_path)
     for i, argv in enumerate(commands):
         argv = argv[1:]
@@ -305,3 +306,4 @@ def test_readme_demo_commands_run(tmp_path, monkeypatch):
     run = tmp_path / commands[0][commands[0].index("--run-dir") + 1]
     assert (run / "checkpoints" / "last.pt").is_file() and (run / "eval.json").is_file()
     assert any(p.stat().st_size > 1000 for p in (run / "videos").glob("*.mp4"))
+    assert (run / "walk.mp4").stat().st_size > 1000  # the shipped walk policy, found by name

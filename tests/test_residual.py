@@ -114,4 +114,4 @@ def test_training_benchmark_runs_with_tiny_settings():
     assert out.returncode == 0, out.stderr[-2000:]
     lines = out.stdout.splitlines()
     assert any(line.startswith("PPO/env ") and "AMP/PPO" in line for line in lines)
-    assert lines[-1].startswith("| `SMPL/Imitation-v0` | 2 | 1 |")
+    assert lines[-1].startswith("| `SMPL/Imitation-v0` | 2 | 1 (1) |")

@@ -71,7 +71,9 @@ class EvalResult:
     def to_json(self) -> str:
         if self.kind == "clips":
             return metrics.to_json(self.rows, self.summary)
-        return json.dumps(_finite({"episodes": self.rows, "summary": self.summary}), indent=2, default=_plain)
+        # metrics' JSON conversion: numpy scalars unpacked, undefined values (NaN) as null.
+        return json.dumps({"episodes": metrics._plain(self.rows), "summary": metrics._plain(self.summary)},
+                          indent=2, allow_nan=False)
 
     def save(self, path) -> Path:
         """Write `to_json()` to `path` (parent directories created); returns the path."""
@@ -82,25 +84,6 @@ class EvalResult:
 
     def __str__(self) -> str:
         return self.table()
-
-
-def _finite(x):
-    """JSON has no NaN: undefined values (e.g. no target to count) become null."""
-    if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_finite(v) for v in x]
-    if isinstance(x, (float, np.floating)) and not np.isfinite(x):
-        return None
-    return x
-
-
-def _plain(x):
-    if isinstance(x, (np.integer, np.bool_)):
-        return x.item()
-    if isinstance(x, np.floating):
-        return None if not np.isfinite(x) else float(x)
-    raise TypeError(type(x).__name__)
 
 
 # ---------------------------------------------------------------------------------------- protocols

@@ -346,3 +346,20 @@ def test_evaluate_refuses_a_one_world_env_clearly():
     with pytest.raises(ValueError, match="vector env"):
         smpl_envs.evaluate(lambda obs: np.zeros((len(obs), 69)), env, progress=False)
     env.close()
+
+
+def test_goal_tasks_example_runs(tmp_path):
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, str(root / "examples" / "goal_tasks.py"), "SMPL/Reach-v0", "--episodes", "2",
+                          "--steps", "10", "--size", "160", "120", "--out", str(tmp_path)],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    for label in ("zero", "random"):
+        assert json.loads((tmp_path / f"reach_{label}.json").read_text())["summary"]["episodes"] == 2
+    assert (tmp_path / "reach_zero.mp4").stat().st_size > 1000
+    assert "hand_distance" in out.stdout

@@ -22,8 +22,9 @@ GOAL_IDS = ["SMPL/Speed-v0", "SMPL/Reach-v0", "SMPL/Strike-v0"]
 
 
 def test_every_id_is_registered_with_both_entry_points():
-    assert set(OBS_DIM) == set(smpl_envs.ENV_IDS)
-    for env_id in OBS_DIM:
+    # Tasks with their own test module (terrain, VR tracking, recovery) check their sizes there.
+    assert set(OBS_DIM) <= set(smpl_envs.ENV_IDS)
+    for env_id in smpl_envs.ENV_IDS:
         spec = gym.spec(env_id)
         assert spec.entry_point is not None and spec.vector_entry_point is not None
     for env_id in GOAL_IDS:

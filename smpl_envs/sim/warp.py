@@ -1,0 +1,297 @@
+"""N humanoid worlds on MuJoCo Warp (GPU, or Warp's CPU device): `CPUSim`'s interface on torch.
+
+One compiled `MjModel` (the humanoid plus whatever a task added: a box, contact sensors, a
+heightfield) is put on the device once with `mujoco_warp.put_model`, and `put_data` allocates
+`num_worlds` worlds of it. Every state array of the Warp `Data` is exposed as a zero-copy torch
+view (`wp.to_torch`), so actions go in and states come out without a host round trip.
+
+Members (torch tensors on `device`, float32 as MuJoCo Warp computes; row i is world i; views
+that the next `set_state` / `step` overwrite in place, as `CPUSim`'s arrays are):
+
+| member | shape | |
+|---|---|---|
+| qpos, qvel | (N, nq), (N, nv) | whole-model state |
+| ctrl | (N, nu) | PD targets of the last step |
+| actuator_force | (N, nu) | of the last substep |
+| sensordata | (N, nsensordata) | of the last substep (acceleration-stage sensors included) |
+| bodies | BodyState of (N, 24, ...) | the humanoid's 24 bodies, world frame (a fresh tensor each read) |
+| overflow | (N,) int32 | MuJoCo Warp's overflow bits per world (`mujoco_warp.OverflowType`), cleared by `set_state` |
+
+`to_numpy(x)` turns a tensor, a `BodyState` or a dict of them into NumPy (zero-copy on the CPU).
+
+Control: the humanoid's actuators are MuJoCo position actuators (gain kp, bias -kp q - kd qdot),
+so writing the PD targets into `ctrl` and stepping `substeps` times inside `step` is the CPU
+backend's control law, run by the physics engine.
+
+Observed state (the CPU backend's step1/step2 convention): each substep is `step2` then `step1`
+(MuJoCo Warp has both halves too), and `set_state` ends with `step1`. So positions, rotations and
+com-based velocities always describe the *current* state, as in `CPUSim`, with no extra forward
+call. One difference of MuJoCo Warp is handled here: its `step1` clears every sensor, also the
+acceleration-stage ones (contact, touch, force) that the `step2` before it computed and that CPU
+MuJoCo keeps; their columns are saved after the last `step2` and written back after `step1`.
+
+Divergence: a world whose qpos or qvel turns non-finite, or whose speed reaches `cpu.MAX_SPEED`,
+is set in the (N,) bool tensor `step` returns; the task resets that world alone with `set_state`.
+A small Warp kernel checks after every substep's integration and parks such a world at the
+model's rest pose (qpos0, at rest) before collision detection runs, as CPU MuJoCo resets a world
+on a bad state: MuJoCo Warp's contact pool (`nconmax` x N) is shared by all worlds, and a world
+flung through the floor would otherwise take the other worlds' contact slots. So a diverged world
+leaves the others bit-identical (the tests check it).
+
+Masks: `set_state(ids, ...)` resets worlds `ids` with `mujoco_warp.reset_data(reset=mask)`, writes
+their state and re-runs `step1` over all worlds (it is a pure function of each world's state, so
+the other worlds' outputs come out unchanged, the price is half a substep). `step(ctrl, active)`
+steps every world (one launch serves all) and then puts the inactive worlds' state back, with
+`torch.where` on the device (no host sync), and runs `step1` again when some world is inactive.
+
+CUDA: the substep loop is captured once in a CUDA graph (`graph=True`, the default) and replayed
+each step; if capture fails the loop runs eagerly. Warp works on its own stream, ordered after
+and before torch's current stream with events, so torch code may read and write the views freely.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+import mujoco
+import numpy as np
+import torch
+import warp as wp
+import mujoco_warp as mjw
+
+from ..features import BodyState
+from ..humanoid.builder import HumanoidAddresses, humanoid_addresses
+from .cpu import MAX_SPEED
+
+# Contacts per world (a humanoid lying on the floor touches it with ~40 points) and constraint
+# rows (pyramidal friction cone of condim 3: 4 rows per contact). MuJoCo Warp's own defaults are
+# sized for a standing robot; overflowing them drops contacts (`overflow` tells).
+NCONMAX = 64
+NJMAX = 256
+
+
+@wp.kernel(enable_backward=False)
+def _park_diverged(qpos0: wp.array(dtype=float), max_speed: float, qpos: wp.array2d(dtype=float),
+                   qvel: wp.array2d(dtype=float), warmstart: wp.array2d(dtype=float), bad: wp.array(dtype=wp.int32)):
+    # A world whose state blew up is put back at the model's rest pose, at rest, before collision
+    # detection sees it (as CPU MuJoCo resets a world on bad qpos / qvel / qacc): Warp's contact
+    # pool is shared by all worlds, and a world flung through the floor would fill it.
+    w = wp.tid()
+    n_bad = int(0)
+    for i in range(qvel.shape[1]):
+        x = qvel[w, i]
+        if wp.isnan(x) or wp.abs(x) >= max_speed:
+            n_bad += 1
+    for i in range(qpos.shape[1]):
+        if wp.isnan(qpos[w, i]) or wp.isinf(qpos[w, i]):
+            n_bad += 1
+    if n_bad > 0:
+        bad[w] = 1
+        for i in range(qpos.shape[1]):
+            qpos[w, i] = qpos0[i]
+        for i in range(qvel.shape[1]):
+            qvel[w, i] = 0.0
+            warmstart[w, i] = 0.0
+
+
+def to_numpy(x):
+    """NumPy of a tensor, a `BodyState` of tensors, or a dict / tuple / list of them (zero-copy
+    for CPU tensors); anything else is returned as it is."""
+    if isinstance(x, torch.Tensor):
+        return x.detach().cpu().numpy()
+    if isinstance(x, BodyState):
+        return BodyState(**{f.name: to_numpy(getattr(x, f.name)) for f in fields(x)})
+    if isinstance(x, dict):
+        return {k: to_numpy(v) for k, v in x.items()}
+    if isinstance(x, (tuple, list)):
+        return type(x)(to_numpy(v) for v in x)
+    return x
+
+
+class WarpSim:
+    """`num_worlds` copies of `model` on MuJoCo Warp, stepped `substeps` physics steps per
+    `step(ctrl)`; the interface of `CPUSim` with torch tensors on `device` (see the module).
+
+    device: "cpu", "cuda" or "cuda:k" (default: "cuda" when Warp sees one, else "cpu").
+    nconmax / njmax: contacts and constraint rows allocated per world. graph: capture the substep
+    loop in a CUDA graph (ignored on the CPU). deterministic: ask MuJoCo Warp for stable contact
+    and constraint ordering on CUDA (slower; the CPU device is deterministic anyway).
+    """
+
+    def __init__(self, model: mujoco.MjModel, num_worlds: int, substeps: int, device: str | None = None,
+                 humanoid: HumanoidAddresses | None = None, nconmax: int = NCONMAX, njmax: int = NJMAX,
+                 graph: bool = True, deterministic: bool = False):
+        for name, value in (("num_worlds", num_worlds), ("substeps", substeps), ("nconmax", nconmax), ("njmax", njmax)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        wp.init()
+        if device is None:
+            device = "cuda" if wp.is_cuda_available() else "cpu"
+        try:
+            self._wp_device = wp.get_device(device)
+        except Exception as e:  # Warp raises its own error types for unknown devices
+            raise ValueError(f"device must be 'cpu' or a CUDA device Warp sees ('cuda', 'cuda:0'), got {device!r}: {e}") from None
+        self.device = torch.device(wp.device_to_torch(self._wp_device))
+        self.model = model
+        self.num_worlds = int(num_worlds)
+        self.substeps = int(substeps)
+        self.humanoid = humanoid or humanoid_addresses(model)
+        ids = self.humanoid.body_ids
+        self._bodies = (slice(int(ids[0]), int(ids[0]) + len(ids)) if np.array_equal(ids, ids[0] + np.arange(len(ids)))
+                        else torch.as_tensor(ids, device=self.device))
+        self._root = self.humanoid.root
+        self._cuda = self._wp_device.is_cuda
+
+        with wp.ScopedDevice(self._wp_device):
+            self.wp_model = mjw.put_model(model)
+            if deterministic:
+                self.wp_model.opt.deterministic = mjw.DeterminismType.ALL
+            host = mujoco.MjData(model)
+            mujoco.mj_forward(model, host)
+            self.wp_data = mjw.put_data(model, host, nworld=self.num_worlds, nconmax=int(nconmax), njmax=int(njmax))
+            self._stream = wp.get_stream(self._wp_device) if self._cuda else None
+        d, view = self.wp_data, wp.to_torch
+        self.qpos, self.qvel, self.ctrl = view(d.qpos), view(d.qvel), view(d.ctrl)
+        self.actuator_force, self.sensordata = view(d.actuator_force), view(d.sensordata)
+        self.overflow = view(d.overflow)
+        self._xpos, self._xmat, self._cvel = view(d.xpos), view(d.xmat), view(d.cvel)
+        self._subtree_com = view(d.subtree_com)
+        # Everything a world carries from one step to the next: put back for inactive worlds.
+        self._carried = [self.qpos, self.qvel, self.ctrl, view(d.act), view(d.qacc_warmstart), view(d.time),
+                         self.actuator_force, self.sensordata]
+        acc = np.zeros(model.nsensordata, bool)
+        for i in np.flatnonzero(model.sensor_needstage == mujoco.mjtStage.mjSTAGE_ACC):
+            acc[model.sensor_adr[i]:model.sensor_adr[i] + model.sensor_dim[i]] = True
+        self._acc_sensors = torch.as_tensor(acc, device=self.device) if acc.any() else None
+        self._sensor_buf = torch.zeros_like(self.sensordata)
+        self._bad = torch.zeros(self.num_worlds, dtype=torch.bool, device=self.device)
+        self._parked = wp.zeros(self.num_worlds, dtype=wp.int32, device=self._wp_device)
+        self._parked_t = wp.to_torch(self._parked)
+        self._qpos0 = wp.array(model.qpos0.astype(np.float32), device=self._wp_device)
+
+        # Load every kernel (a graph cannot compile), then start all worlds at the model's rest.
+        self._graph = None
+        self._run(self._substeps_eager)
+        self._run(self._reset_mask, torch.ones(self.num_worlds, dtype=torch.bool, device=self.device))
+        if graph and self._cuda:
+            try:
+                self._run(self._capture)
+            except Exception as e:  # a driver without conditional graph nodes, say: run eagerly
+                import warnings
+
+                warnings.warn(f"CUDA graph capture failed, stepping without a graph: {e}")
+                self._graph = None
+            self._run(self._reset_mask, torch.ones(self.num_worlds, dtype=torch.bool, device=self.device))
+
+    # ------------------------------------------------------------------ state in and out
+    def set_state(self, ids, qpos, qvel) -> None:
+        """Place worlds `ids` at (qpos, qvel), at rest otherwise (time, ctrl, forces, warm start,
+        overflow bits cleared). Arrays may be NumPy or torch; they are copied to the device."""
+        ids = torch.as_tensor(ids, device=self.device).reshape(-1).long()
+        n = len(ids)
+        if n and (int(ids.min()) < 0 or int(ids.max()) >= self.num_worlds):
+            raise ValueError(f"ids must be world indices in [0, {self.num_worlds})")
+        qpos = torch.as_tensor(qpos, dtype=self.qpos.dtype, device=self.device)
+        qvel = torch.as_tensor(qvel, dtype=self.qvel.dtype, device=self.device)
+        if qpos.numel() != n * self.model.nq or qvel.numel() != n * self.model.nv:
+            raise ValueError(f"qpos and qvel must be ({n}, {self.model.nq}) and ({n}, {self.model.nv}) for {n} ids, "
+                             f"got {tuple(qpos.shape)} and {tuple(qvel.shape)}")
+        mask = torch.zeros(self.num_worlds, dtype=torch.bool, device=self.device)
+        mask[ids] = True
+        self._run(self._reset_mask, mask, ids, qpos.reshape(n, -1), qvel.reshape(n, -1))
+
+    def _reset_mask(self, mask, ids=None, qpos=None, qvel=None) -> None:
+        mjw.reset_data(self.wp_model, self.wp_data, reset=wp.from_torch(mask))
+        if ids is not None:
+            self.qpos[ids] = qpos
+            self.qvel[ids] = qvel
+        self.actuator_force.masked_fill_(mask[:, None], 0.0)  # reset_data leaves it
+        self._parked_t.masked_fill_(mask, 0)
+        self._park()  # a bad state placed here is parked now and reported by the next step
+        self._step1()
+
+    def step(self, ctrl, active=None) -> torch.Tensor:
+        """Apply `ctrl` (N, nu) for `substeps` physics steps in every world (or only where the
+        (N,) bool mask `active` is set: the others keep their state); returns the (N,) bool
+        tensor of worlds that diverged in this step (never an inactive one)."""
+        ctrl = torch.as_tensor(ctrl, dtype=self.ctrl.dtype, device=self.device)
+        if ctrl.shape != self.ctrl.shape:
+            raise ValueError(f"ctrl must have shape {tuple(self.ctrl.shape)}, got {tuple(ctrl.shape)}")
+        if active is not None:
+            active = torch.as_tensor(active, dtype=torch.bool, device=self.device).reshape(-1)
+            if active.shape != (self.num_worlds,):
+                raise ValueError(f"active must be a bool mask of {self.num_worlds} worlds, got shape {tuple(active.shape)}")
+        self._run(self._step, ctrl, active)
+        return self._bad.clone()
+
+    def _step(self, ctrl, active) -> None:
+        saved = None if active is None else [a.clone() for a in self._carried]
+        self.ctrl.copy_(ctrl)
+        if self._graph is not None:
+            wp.capture_launch(self._graph, stream=self._stream)
+        else:
+            self._substeps_eager()
+        torch.ne(self._parked_t, 0, out=self._bad)
+        self._parked_t.zero_()
+        if active is not None:
+            keep = ~active
+            for a, s in zip(self._carried, saved):
+                a.copy_(torch.where(keep.reshape(-1, *[1] * (a.dim() - 1)), s, a))
+            self._bad &= active
+            # The derived quantities (kinematics, contacts, mass matrix) of the restored worlds
+            # belong to their old state again; acceleration-stage sensors were restored above.
+            self._step1()
+
+    def _substeps_eager(self) -> None:
+        for _ in range(self.substeps):
+            mjw.step2(self.wp_model, self.wp_data)
+            self._park()
+            self._step1()
+
+    def _park(self) -> None:
+        d = self.wp_data
+        wp.launch(_park_diverged, dim=self.num_worlds, inputs=[self._qpos0, MAX_SPEED, d.qpos, d.qvel, d.qacc_warmstart,
+                                                               self._parked])
+
+    def _capture(self) -> None:
+        with wp.ScopedCapture(stream=self._stream) as capture:
+            self._substeps_eager()
+        self._graph = capture.graph
+
+    def _step1(self) -> None:
+        if self._acc_sensors is None:
+            mjw.step1(self.wp_model, self.wp_data)
+            return
+        # step1 zeroes every sensor; CPU MuJoCo keeps the acceleration-stage ones that the last
+        # step2 computed (contact sensors), so save them and put them back.
+        self._sensor_buf.copy_(self.sensordata)
+        mjw.step1(self.wp_model, self.wp_data)
+        torch.where(self._acc_sensors, self._sensor_buf, self.sensordata, out=self.sensordata)
+
+    def _run(self, fn, *args) -> None:
+        # On CUDA, Warp's stream runs after what torch queued before, and torch's after Warp's.
+        if not self._cuda:
+            fn(*args)
+            return
+        torch_stream = wp.stream_from_torch(torch.cuda.current_stream(self.device))
+        self._stream.wait_stream(torch_stream)
+        with wp.ScopedDevice(self._wp_device), wp.ScopedStream(self._stream), torch.cuda.stream(
+                torch.cuda.ExternalStream(self._stream.cuda_stream, device=self.device)):
+            fn(*args)
+        torch_stream.wait_stream(self._stream)
+
+    @property
+    def bodies(self) -> BodyState:
+        """Positions, rotation matrices and velocities of the humanoid's 24 bodies, world frame
+        (torch tensors on the device)."""
+        b = self._bodies
+        pos, cvel = self._xpos[:, b], self._cvel[:, b]
+        ang = cvel[..., :3]
+        # cvel is the spatial velocity at the root subtree's centre of mass; move it to each
+        # body origin: v = v_com + w x (x_body - x_com).
+        lin = cvel[..., 3:] + torch.linalg.cross(ang, pos - self._subtree_com[:, self._root, None], dim=-1)
+        return BodyState(pos=pos, rot=self._xmat[:, b], lin_vel=lin, ang_vel=ang,
+                         dof_pos=self.qpos[:, self.humanoid.dof_qpos], dof_vel=self.qvel[:, self.humanoid.dof_qvel])
+
+    def close(self) -> None:
+        self._graph = None

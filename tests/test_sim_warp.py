@@ -77,7 +77,9 @@ def test_import_of_sim_does_not_import_warp():
 
 def test_members_are_device_tensors(sims, model, lib):
     sim = sims[0]
-    sim.set_state(np.arange(N), *_starts(lib, N))
+    q, v = _starts(lib, N)
+    sim.set_state(torch.arange(N), torch.as_tensor(q), torch.as_tensor(v))  # torch in, as NumPy
+    np.testing.assert_allclose(to_numpy(sim.qpos), q, atol=1e-6)
     assert sim.num_worlds == N and sim.substeps == 4 and sim.device.type == "cpu"
     for t, shape in ((sim.qpos, (N, model.nq)), (sim.qvel, (N, model.nv)), (sim.ctrl, (N, model.nu)),
                      (sim.actuator_force, (N, model.nu)), (sim.sensordata, (N, 0))):

@@ -63,9 +63,10 @@ from ..features import BodyState
 from ..humanoid.builder import HumanoidAddresses, humanoid_addresses
 from .cpu import MAX_SPEED
 
-# Contacts per world (a humanoid lying on the floor touches it with ~40 points) and constraint
-# rows (pyramidal friction cone of condim 3: 4 rows per contact). MuJoCo Warp's own defaults are
-# sized for a standing robot; overflowing them drops contacts (`overflow` tells).
+# Contacts per world and constraint rows (pyramidal friction cone of condim 3: 4 rows a contact).
+# The humanoid touches the floor at 2-8 points standing or lying, and at 52 (208 rows) with every
+# geom below it, so these hold the worst case with room for a task's box; MuJoCo Warp's defaults
+# (48, 64) are sized for a standing robot. Overflowing them drops contacts (`overflow` tells).
 NCONMAX = 64
 NJMAX = 256
 

@@ -1,0 +1,133 @@
+"""Physics-level throughput of the MuJoCo Warp backend against the number of worlds.
+
+For each world count N it builds `WarpSim(model, N, substeps=4, device)`, places the worlds at
+random frames of the shipped walk clip, and times `--steps` control steps whose PD targets track
+the clip (the actions live on the device, so the loop has no host round trip); the figure is env
+steps / s = control steps x N / seconds, 4 physics substeps each included. The CPU backend
+(`CPUSim`, one thread per core) runs the same actions at the same N for reference (`--cpu-max`
+caps it: past that N the column shows "-"). Medians over `--repeats`; the device's name and the
+first-call time (kernel loading, CUDA graph capture) are printed with a Markdown table.
+
+    python benchmarks/bench_warp.py                           # CUDA: 1024 .. 16384 worlds
+    python benchmarks/bench_warp.py --device cpu --worlds 16 64 --steps 10 --repeats 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import warp as wp
+
+from smpl_envs.humanoid import build_humanoid
+from smpl_envs.motion.library import MotionLib
+from smpl_envs.sim import CPUSim, WarpSim
+
+SUBSTEPS = 4
+
+
+def device_name(device: str) -> str:
+    if device.startswith("cuda"):
+        return torch.cuda.get_device_name(torch.device(device))
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        model = platform.processor() or platform.machine()
+    return f"{model} ({os.cpu_count()} cores)"
+
+
+def workload(lib: MotionLib, n: int, steps: int, seed: int = 0):
+    """Start states of n worlds at random walk frames and, per control step, the clip's next
+    frame as PD targets: (qpos (n, nq), qvel, targets (steps, n, 69))."""
+    rng = np.random.default_rng(seed)
+    start = rng.integers(0, lib.lengths[0] - 1, n)
+    q, v = lib.qpos_qvel(start)
+    frames = np.minimum(start[None] + np.arange(1, steps + 1)[:, None], lib.lengths[0] - 1)
+    targets = lib.qpos_qvel(frames.ravel())[0][:, 7:].reshape(steps, n, -1)
+    return q, v, targets
+
+
+def time_warp(sim: WarpSim, q, v, targets, sync) -> float:
+    sim.set_state(np.arange(sim.num_worlds), q, v)
+    ctrl = torch.as_tensor(targets, dtype=torch.float32, device=sim.device)
+    sync()
+    t = time.perf_counter()
+    for c in ctrl:
+        sim.step(c)
+    sync()
+    return len(ctrl) * sim.num_worlds / (time.perf_counter() - t)
+
+
+def time_cpu(sim: CPUSim, q, v, targets) -> float:
+    sim.set_state(np.arange(sim.num_worlds), q, v)
+    t = time.perf_counter()
+    for c in targets:
+        sim.step(c)
+    return len(targets) * sim.num_worlds / (time.perf_counter() - t)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--worlds", type=int, nargs="+", help="world counts (default: 1024..16384 on CUDA, 16..256 on the CPU)")
+    parser.add_argument("--steps", type=int, default=60, help="control steps per repeat (2 s of motion)")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--cpu-max", type=int, default=4096, help="largest N the CPU backend is timed at")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    for name in ("steps", "repeats"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be >= 1")
+    cuda = args.device.startswith("cuda")
+    worlds = args.worlds or ([1024, 2048, 4096, 8192, 16384] if cuda else [16, 64, 256])
+    if min(worlds) < 1:
+        parser.error("--worlds must be positive")
+    sync = (lambda: torch.cuda.synchronize(args.device)) if cuda else (lambda: None)
+
+    wp.config.quiet = True  # no line per kernel module loaded
+    model, lib = build_humanoid(), MotionLib.load("walk")
+    print(f"device: {args.device} = {device_name(args.device)}; CPU backend: {device_name('cpu')}")
+    rows = []
+    for n in worlds:
+        q, v, targets = workload(lib, n, args.steps)
+        t = time.perf_counter()
+        sim = WarpSim(model, n, SUBSTEPS, device=args.device)
+        sync()
+        setup = time.perf_counter() - t
+        time_warp(sim, q, v, targets[:2], sync)  # first steps outside the timing
+        warp_rate = statistics.median(time_warp(sim, q, v, targets, sync) for _ in range(args.repeats))
+        fell = int((sim.qpos[:, 2] < 0.5).sum())
+        sim.close()
+        cpu_rate = None
+        if n <= args.cpu_max:
+            cpu = CPUSim(model, n, SUBSTEPS)
+            cpu_rate = statistics.median(time_cpu(cpu, q, v, targets) for _ in range(args.repeats))
+            cpu.close()
+        rows.append(dict(worlds=n, warp_env_steps_per_s=round(warp_rate), warp_physics_steps_per_s=round(warp_rate * SUBSTEPS),
+                         cpu_env_steps_per_s=None if cpu_rate is None else round(cpu_rate), setup_s=round(setup, 1),
+                         fallen_at_end=fell))
+        print(f"  N={n}: {warp_rate:,.0f} env steps/s (setup {setup:.1f} s)", flush=True)
+
+    print(f"\nMuJoCo Warp on {device_name(args.device)}; {SUBSTEPS} substeps of 1/120 s per env step; "
+          f"median of {args.repeats} x {args.steps} steps\n")
+    print("| worlds | Warp env steps/s | Warp physics steps/s | CPU backend env steps/s | Warp / CPU | setup (s) |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        c = r["cpu_env_steps_per_s"]
+        cpu, ratio = ("-", "-") if c is None else (f"{c:,}", f"{r['warp_env_steps_per_s'] / c:.2f}")
+        print(f"| {r['worlds']:,} | {r['warp_env_steps_per_s']:,} | {r['warp_physics_steps_per_s']:,} | "
+              f"{cpu} | {ratio} | {r['setup_s']} |")
+    if args.json:
+        args.json.write_text(json.dumps(dict(device=args.device, device_name=device_name(args.device), rows=rows), indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -443,3 +443,150 @@ def format_episode_table(rows: list[dict], summary: dict) -> str:
 
 
 __all__ = ["EvalResult", "EvalProtocol", "ClipProtocol", "EpisodeProtocol", "evaluate", "protocol_for"]
+
+
+# ---------------------------------------------------------------------------------------- VR tracking
+class ThreePointResult(EvalResult):
+    """A three-point evaluation: rows and summary as `EvalResult` (three-point errors under the
+    plain keys, full-body ones under `body_*`); the table shows the three points, then the full
+    body over the clips where it is known."""
+
+    def table(self) -> str:
+        head = "three points (Head, L_Hand, R_Hand); E_mpjpe relative to the head, E_pa-mpjpe undefined:"
+        text = f"{head}\n{metrics.format_table(self.rows, self.summary)}"
+        body_rows = [_body_row(r) for r in self.rows if "body_mpjpe_g" in r]
+        if body_rows:
+            summary = {"clips": len(body_rows), "success_rate": np.mean([r["success"] for r in body_rows]),
+                       **{k[len("body_"):]: v for k, v in self.summary.items() if k.startswith("body_")}}
+            text += ("\n\nfull body (clips with a known body; success is the three-point one):\n"
+                     + metrics.format_table(body_rows, summary))
+        return text
+
+
+def _body_row(row: dict) -> dict:
+    """A three-point row's full-body errors under the plain metric keys."""
+    out = {k: row[k] for k in ("name", "success", "frames", "frames_pos", "frames_vel", "frames_acc", "fail_frame")}
+    out.update({k: row[f"body_{k}"] for k in metrics.ERROR_KEYS})
+    return out
+
+
+class ThreePointProtocol(ClipProtocol):
+    """VR three-point tracking (`SMPL/VRTracking-v0`): every clip or stream once from its first
+    frame, as `ClipProtocol`, with the env's early termination off. Option: threshold (0.5 m).
+
+    * A clip fails at the first frame where any of the three points (Head, L_Hand, R_Hand) is
+      farther than `threshold` from its reference (PULSE's paper; its code trains at 0.25 m);
+      tracking stops there. A divergence fails it too.
+    * Per clip: success, fail_frame, and `metrics.clip_metrics` of the three points' trajectories
+      (E_g-mpjpe, E_acc, E_vel in mm; E_mpjpe relative to the head; E_pa-mpjpe is NaN, a
+      similarity fit of three points says nothing); where the clip's full body is known, the
+      same errors of all 24 bodies as `body_mpjpe_g`, `body_mpjpe_l`, `body_mpjpe_pa`,
+      `body_accel`, `body_vel`.
+    * Summary: `metrics.summarize` of the rows (frame weighted, as PHC; plain keys over the
+      successful clips, `all_*` over all), the full-body aggregates under `body_*` (over the
+      clips with a body, `body_clips`), and `score` (success rate, ties broken by the lower
+      three-point E_g-mpjpe).
+    """
+
+    def make_env(self, env_id, motions, num_envs, env_kwargs, progress, options):
+        import gymnasium as gym
+
+        from .envs import load_motions
+        from .motion.three_point import as_three_point_lib
+
+        clash = sorted(set(env_kwargs) & {"motions", "termination_distance", *self.forced_kwargs})
+        if clash:
+            raise ValueError(f"env_kwargs must not set {clash}: evaluate() chooses them")
+        motions = "walk" if motions is None else motions
+        refs = as_three_point_lib(motions) or load_motions(motions, progress=progress)
+        return gym.make_vec(env_id, num_envs=min(num_envs, refs.num_motions), motions=refs,
+                            termination_distance=None, autoreset_mode="Disabled", **env_kwargs)
+
+    def run(self, policy, env, options, progress):
+        rows = _run_three_point(policy, env, options["threshold"], progress)
+        summary = metrics.summarize(rows)
+        body_rows = [_body_row(r) for r in rows if "body_mpjpe_g" in r]
+        if body_rows:
+            body = metrics.summarize(body_rows)
+            summary["body_clips"] = body.pop("clips")
+            body.pop("success_rate")
+            summary.update({f"body_{k}": v for k, v in body.items()})
+        error = summary.get("all_mpjpe_g")
+        summary["score"] = float(summary["success_rate"]) - (1e-6 * error if error is not None and np.isfinite(error) else 0.0)
+        return ThreePointResult(rows, summary, "clips")
+
+
+def _run_three_point(policy: Callable, env, threshold: float, progress: bool) -> list[dict]:
+    # The queue of `_run_clips` (every world takes the next clip when its own ends), recording the
+    # three points and, where the env reports it, the full body.
+    u = getattr(env, "unwrapped", env)
+    refs = u.references
+    n, m = u.num_envs, refs.num_motions
+    clip = np.full(n, -1, np.int64)
+    frames: list[list] = [[] for _ in range(n)]  # per world: (sim points, ref points[, sim body, ref body])
+    broke = np.zeros(n, bool)
+    rows: list[dict | None] = [None] * m
+
+    def record(worlds, info, terminated=None, truncated=None):
+        keys = ("point_pos", "ref_point_pos") + (("body_pos", "ref_body_pos") if "ref_body_pos" in info else ())
+        arrays = [np.asarray(info[k], np.float64)[worlds] for k in keys]
+        for k, w in enumerate(worlds):
+            frames[w].append([a[k] for a in arrays])
+        stop = np.linalg.norm(arrays[0] - arrays[1], axis=-1).max(axis=-1) > threshold
+        if terminated is not None:
+            broke[worlds] = terminated[worlds]
+            stop |= terminated[worlds] | truncated[worlds]
+        return worlds[stop]
+
+    first = min(n, m)
+    obs, info = env.reset(seed=0, options={"motion_ids": np.arange(n) % m, "start": "beginning"})
+    obs = np.array(obs, copy=True)
+    clip[:first] = np.arange(first)
+    next_clip = first
+    done = record(np.arange(first), info)
+    bar = tqdm(total=m, desc="evaluate", unit="clip", disable=not progress)
+    try:
+        while True:
+            while len(done):
+                for w in done:
+                    rows[clip[w]] = _three_point_row(refs.names[clip[w]], int(clip[w]), frames[w], broke[w], threshold)
+                    frames[w], clip[w], broke[w] = [], -1, False
+                    bar.update(1)
+                take = done[:m - next_clip]
+                if not len(take):
+                    break
+                ids = np.arange(next_clip, next_clip + len(take))
+                next_clip += len(take)
+                mask = np.zeros(n, bool)
+                mask[take] = True
+                new_obs, info = env.reset(options={"reset_mask": mask, "motion_ids": ids, "start": "beginning"})
+                obs[take] = np.asarray(new_obs)[take]
+                clip[take] = ids
+                done = record(take, info)
+            active = np.flatnonzero(clip >= 0)
+            if not len(active):
+                break
+            obs, _, terminated, truncated, info = env.step(_act(policy, obs))
+            obs = np.array(obs, copy=True)
+            done = record(active, info, np.asarray(terminated, bool), np.asarray(truncated, bool))
+    finally:
+        bar.close()
+    return rows
+
+
+def _three_point_row(name: str, motion_id: int, frames: list, broke: bool, threshold: float) -> dict:
+    """One finished clip's row (ThreePointProtocol's docstring)."""
+    tracks = [np.stack(t) for t in zip(*frames)]
+    # A diverged world's last frame may be non-finite: measure the frames before it.
+    cut = len(frames) - 1 if broke and not all(np.isfinite(t[-1]).all() for t in tracks) else len(frames)
+    sim, ref = tracks[0][:cut], tracks[1][:cut]
+    row = metrics.clip_metrics(sim, ref, threshold)
+    over = np.flatnonzero(np.linalg.norm(sim - ref, axis=-1).max(axis=-1) > threshold)
+    row.update(success=not over.size, fail_frame=int(over[0]) if over.size else -1, mpjpe_pa=float("nan"))
+    if broke and row["success"]:
+        row.update(success=False, fail_frame=len(frames) - 1, frames=len(frames))
+    if len(tracks) == 4:
+        body = metrics.clip_metrics(tracks[2][:cut], tracks[3][:cut], threshold)
+        row.update({f"body_{k}": body[k] for k in metrics.ERROR_KEYS})
+    return {"name": name, "motion_id": motion_id, **row}
+

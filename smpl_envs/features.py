@@ -225,3 +225,25 @@ def layout_slices(layouts: dict[str, tuple]) -> dict[str, slice]:
             out[f"{group}/{name}"] = slice(start, start + size)
             start += size
     return out
+
+
+def goal_layout(bodies: int) -> tuple:
+    """IMITATION_GOAL_LAYOUT for `bodies` tracked bodies (same blocks, same order, 24 per body)."""
+    return tuple((name, size // NUM_BODIES * bodies, what) for name, size, what in IMITATION_GOAL_LAYOUT)
+
+
+def body_goal_obs(s: BodyState, ref: BodyState, bodies, heading=None):
+    """The rotation imitation goal (IMITATION_GOAL_LAYOUT's six blocks, heading frame) of a
+    subset of the bodies: (N, 24 B) for the index array `bodies` (B,), with `ref` holding only
+    those bodies' references ((N, B, ...); its dof fields are not read). With every body it
+    equals `tracking_obs(s, ref)[:, 358:]`; the VR task uses it for the head and hands."""
+    m = xp(s.pos)
+    n, nb = ref.pos.shape[:2]
+    heading = heading_rotation(s.rot[:, 0]) if heading is None else heading
+    pos = s.pos[:, bodies]
+    v = to_heading(m.concatenate([ref.pos - pos, ref.lin_vel - s.lin_vel[:, bodies],
+                                  ref.ang_vel - s.ang_vel[:, bodies], ref.pos - s.pos[:, :1]], 1), heading)
+    rots = rot_to_heading(m.concatenate([s.rot[:, bodies], ref.rot], 1), heading)
+    sim_rot, ref_rot = rots[:, :nb], rots[:, nb:]
+    diff = ref_rot @ sim_rot.swapaxes(-1, -2)
+    return m.concatenate([v.reshape(n, -1), rot6d(diff).reshape(n, -1), rot6d(ref_rot).reshape(n, -1)], -1)

@@ -19,6 +19,7 @@ ENV_IDS = {
     "SMPL/Speed-v0": ("smpl_envs.envs.speed:SpeedVecEnv", 300),
     "SMPL/Reach-v0": ("smpl_envs.envs.reach:ReachVecEnv", 300),
     "SMPL/Strike-v0": ("smpl_envs.envs.strike:StrikeVecEnv", 300),
+    "SMPL/VRTracking-v0": ("smpl_envs.envs.vr:VRTrackingVecEnv", None),
     "SMPL/Terrain-v0": ("smpl_envs.envs.terrain:TerrainVecEnv", 300),
 }
 

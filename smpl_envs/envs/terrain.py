@@ -120,6 +120,17 @@ def path_at(path, times):
     return path[rows, i] + f * (path[rows, i + 1] - path[rows, i])
 
 
+def height_map(terrain, root_pos, heading):
+    """(N, 1024) height map observation of `terrain` (a `smpl_envs.terrain.Terrain`, or None for
+    the flat floor) around pelvis positions (N, 3), aligned with headings (N, 3, 3): every world's
+    1024 sample points rotated and moved at once, then one batched bilinear lookup."""
+    c, s = heading[:, 0, 0:1], heading[:, 1, 0:1]
+    fx, fy = MAP_OFFSETS[:, 0], MAP_OFFSETS[:, 1]
+    xy = np.stack([root_pos[:, :1] + c * fx - s * fy, root_pos[:, 1:2] + s * fx + c * fy], -1)
+    ground = 0.0 if terrain is None else terrain.height(xy)
+    return np.clip(root_pos[:, 2:3] - ground, -MAP_CLIP, MAP_CLIP) * MAP_SCALE
+
+
 def terrain_episode_metrics(log: dict) -> dict:
     error, length = log["path_error"], log["path_length"]
     followed = error <= FOLLOWED
@@ -185,11 +196,7 @@ class TerrainVecEnv(GoalVecEnv):
 
     def height_map(self, root_pos, heading):
         """(N, 1024) observation of the terrain around pelvis positions (N, 3), heading-aligned."""
-        c, s = heading[:, 0, 0], heading[:, 1, 0]
-        fx, fy = MAP_OFFSETS[:, 0], MAP_OFFSETS[:, 1]
-        xy = np.stack([root_pos[:, :1] + c[:, None] * fx - s[:, None] * fy,
-                       root_pos[:, 1:2] + s[:, None] * fx + c[:, None] * fy], -1)
-        return np.clip(root_pos[:, 2:3] - self.ground(xy), -MAP_CLIP, MAP_CLIP) * MAP_SCALE
+        return height_map(self.terrain, root_pos, heading)
 
     # ------------------------------------------------------------------ episodes
     def _reset_task(self, ids, options):
@@ -270,4 +277,4 @@ class TerrainVecEnv(GoalVecEnv):
         return [(pos[:1], (1.0, 0.55, 0.1, 0.95), 0.06), (pos[1:], (0.2, 0.85, 0.3, 0.9), 0.04)]
 
 
-__all__ = ["TerrainVecEnv", "path_reward", "make_paths", "path_at"]
+__all__ = ["TerrainVecEnv", "height_map", "path_reward", "make_paths", "path_at"]

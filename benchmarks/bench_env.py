@@ -12,6 +12,12 @@ termination, AMP features, info).
 N worlds: `gym.make_vec(id, num_envs=N)` driven the same way (imitation: every world from a
 shipped clip's first frame), against raw physics replaying the same controls on N MjData stepped
 by the same thread pool, and against the single env's rate. Figures are medians of `--repeats`.
+Terrain runs with the off-path rule widened (no episode ends inside the run, as the replay needs).
+
+Height map (tasks that observe one, e.g. `SMPL/Terrain-v0`): at N worlds, every env step is
+followed by one extra `height_map` call on the state it left, timed on its own, so the two are
+measured side by side in one run; the table gives the height map's time and its share of a step
+(the step itself computes one), medians of `--repeats`.
 """
 
 from __future__ import annotations
@@ -28,12 +34,15 @@ import smpl_envs  # noqa: F401  (registers the ids)
 from smpl_envs.motion import available_clips
 
 IMITATION = ("SMPL/Imitation-v0", "SMPL/KeypointImitation-v0")
+# Keeps every terrain episode running for the whole measurement (the rest pose stands, but the
+# path it does not follow would end the episode 4 m later).
+NO_END = {"SMPL/Terrain-v0": dict(off_path_distance=1e6)}
 
 
 def _kwargs(env_id: str, single: bool) -> dict:
     if env_id in IMITATION:
         return dict(termination_distance=None, start="beginning", motions="walk" if single else available_clips())
-    return {}
+    return dict(NO_END.get(env_id, {}))
 
 
 def _policy(vec):
@@ -124,6 +133,32 @@ def many_worlds(env_id: str, n: int, steps: int) -> tuple[float, float]:
     return rate, raw
 
 
+def height_map_share(env_id: str, n: int, steps: int) -> tuple[float, float] | None:
+    """(ms per height map of n worlds, its share of an env step), or None if the task has none."""
+    from smpl_envs.features import heading_rotation
+
+    env = gym.make_vec(env_id, num_envs=n, **_kwargs(env_id, False))
+    u = env.unwrapped
+    if not hasattr(u, "height_map"):
+        env.close()
+        return None
+    env.reset(seed=0)
+    act = _policy(env)
+    actions = [act() for _ in range(steps)]
+    t_step = t_map = 0.0
+    for a in actions:
+        t = time.perf_counter()
+        env.step(a)
+        t_step += time.perf_counter() - t
+        body = env.sim.bodies
+        heading = heading_rotation(body.rot[:, 0])
+        t = time.perf_counter()
+        u.height_map(body.pos[:, 0], heading)
+        t_map += time.perf_counter() - t
+    env.close()
+    return 1e3 * t_map / steps, t_map / t_step
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--ids", nargs="+", default=list(smpl_envs.ENV_IDS), help="task ids (default: all)")
@@ -143,6 +178,16 @@ def main() -> None:
         print(f"| `{env_id}` | {env1:.0f} | {raw1:.0f} | {np.median(singles[:, 0] / singles[:, 1]):.2f} "
               f"| {envn:.0f} | {rawn:.0f} | {np.median(multi[:, 0] / multi[:, 1]):.2f} | {envn / env1:.2f}x |",
               flush=True)
+    maps = {}
+    for env_id in args.ids:
+        runs = [height_map_share(env_id, args.worlds, args.steps) for _ in range(args.repeats)]
+        if runs[0] is not None:
+            maps[env_id] = np.median(np.array(runs), 0)
+    if maps:
+        print(f"\n| id | height map at {args.worlds} worlds (ms) | share of an env step |")
+        print("|---|---|---|")
+        for env_id, (ms, share) in maps.items():
+            print(f"| `{env_id}` | {ms:.2f} | {100 * share:.1f} % |", flush=True)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,259 @@
+"""SMPL/VRTracking-v0: Gymnasium contracts, the three-point goal (which references it reads and
+that it is Imitation's goal of those bodies), rewards, termination, three-point stream files, and
+the evaluation protocol."""
+
+import warnings
+from dataclasses import replace
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import smpl_envs
+from smpl_envs.envs.imitation import imitation_reward
+from smpl_envs.envs.vr import VR_GOAL_LAYOUT, tracked, vr_terminated
+from smpl_envs.evaluation import _three_point_row
+from smpl_envs.features import body_goal_obs, heading_rotation, layout_size, tracking_obs
+from smpl_envs.humanoid import BODY_NAMES
+from smpl_envs.motion import MotionFileError, MotionLib
+from smpl_envs.motion.three_point import (TRACKED, ThreePointStream, load_stream, write_stream)
+from smpl_envs.rotations import quat_to_matrix
+
+ID = "SMPL/VRTracking-v0"
+GOAL = slice(358, 430)
+HEAD, KNEE = BODY_NAMES.index("Head"), BODY_NAMES.index("L_Knee")
+
+
+@pytest.fixture(scope="module")
+def walk_stream(tmp_path_factory):
+    """A stream file cut from the shipped walk clip."""
+    lib = MotionLib.load("walk", progress=False)
+    s = ThreePointStream.from_motion((lib, 0))
+    return write_stream(tmp_path_factory.mktemp("streams") / "walk_3p.npz", s.positions, s.quats)
+
+
+def _vec(**kwargs):
+    return gym.make_vec(ID, **{"num_envs": 2, "motions": "walk", **kwargs})
+
+
+def test_registered_sizes_and_env_checker():
+    assert ID in smpl_envs.ENV_IDS and layout_size(VR_GOAL_LAYOUT) == 72
+    env = gym.make(ID, render_mode="rgb_array", render_size=(96, 72))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*(infinity|too low|too high).*")
+        check_env(env.unwrapped)
+    assert env.observation_space.shape == (430,) and env.action_space.shape == (69,)
+    env.reset(seed=0)
+    assert env.render().shape == (72, 96, 3)
+    env.close()
+
+
+def test_make_vec_is_native_batched_and_seeded():
+    def rollout(seed):
+        out = [env.reset(seed=seed)[0]]
+        rng = np.random.default_rng(0)
+        for _ in range(20):
+            obs, rew, term, trunc, info = env.step(rng.uniform(-0.3, 0.3, (8, 69)))
+            out += [obs, rew, term, trunc]
+        return out, info
+
+    env = gym.make_vec(ID, num_envs=8, motions=["walk", "run"])
+    assert env.sim.num_worlds == 8
+    a, info = rollout(3)
+    b, _ = rollout(3)
+    c, _ = rollout(4)
+    assert a[0].shape == (8, 430) and a[0].dtype == np.float32
+    assert all(np.array_equal(x, y) for x, y in zip(a, b)) and not np.array_equal(a[0], c[0])
+    assert info["point_pos"].shape == (8, 3, 3) and info["ref_body_pos"].shape == (8, 24, 3)
+    terms = [k for k in info if k.startswith("reward_")]
+    assert np.allclose(a[-3], sum(info[k] for k in terms))
+    assert max(s.stop for s in env.observation_structure.values()) == 430
+    env.close()
+
+
+def test_goal_is_imitations_goal_of_the_three_bodies():
+    env = _vec(start="random")
+    env.reset(seed=1)
+    env.step(np.random.default_rng(0).uniform(-0.2, 0.2, (2, 69)))
+    u = env.unwrapped
+    body, ref = u.sim.bodies, u.ref.next()
+    heading = heading_rotation(body.rot[:, 0])
+    full = tracking_obs(body, ref, "rotation", heading)[:, 358:]
+    assert np.allclose(body_goal_obs(body, ref, np.arange(24), heading), full, atol=1e-6)
+    # The VR goal = the imitation goal's columns of Head, L_Hand, R_Hand, block by block.
+    cols = np.concatenate([start + (k * TRACKED[:, None] + np.arange(k)).ravel()
+                           for start, k in zip(np.cumsum([0, 72, 72, 72, 72, 144])[:6], (3, 3, 3, 3, 6, 6))])
+    assert np.allclose(u._observe(body, heading)[:, GOAL], full[:, cols], atol=1e-6)
+    env.close()
+
+
+def test_observation_reads_only_the_three_references():
+    env = _vec(start="beginning")
+    env.reset(seed=0)
+    u = env.unwrapped
+    body = u.sim.bodies
+    heading = heading_rotation(body.rot[:, 0])
+    before = u._observe(body, heading)
+    lib = u.motion_lib
+    lib.body_pos = lib.body_pos.copy()
+    lib.body_pos[:, KNEE] += 0.3  # another body's reference moves: nothing changes
+    u.ref._cache = []
+    assert np.array_equal(u._observe(body, heading), before)
+    lib.body_pos[:, HEAD] += 0.1  # the head's moves: the goal changes, the self part does not
+    u.ref._cache = []
+    after = u._observe(body, heading)
+    assert np.array_equal(after[:, :358], before[:, :358])
+    assert np.abs(after[:, GOAL] - before[:, GOAL]).max() > 0.05
+    env.close()
+
+
+def test_zero_error_in_the_reference_state_and_reward_kwarg_switches_terms():
+    env = _vec(start="beginning")
+    _, info = env.reset(seed=0)
+    u = env.unwrapped
+    assert info["point_error"].max() < 1e-4 and np.allclose(info["point_pos"], info["ref_point_pos"], atol=1e-4)
+    body = u.sim.bodies
+    goal = body_goal_obs(body, tracked(u.ref.current()), TRACKED, heading_rotation(body.rot[:, 0]))
+    assert np.abs(goal[:, :9]).max() < 1e-4 and np.abs(goal[:, 36:54] - np.tile([1, 0, 0, 1, 0, 0], 3)).max() < 1e-4
+    reward, terms, terminated, _ = u._evaluate(body, heading_rotation(body.rot[:, 0]))
+    assert np.allclose(terms["pos"], 0.5, atol=1e-3) and np.allclose(terms["rot"], 0.3, atol=1e-3)
+    assert not terminated.any()
+
+    # "full" is Imitation's reward over 24 bodies; "three_point" the same terms over the three.
+    ref = u.ref.current()
+    ref_moved = replace(ref, pos=ref.pos.copy())
+    ref_moved.pos[:, KNEE] += 0.2
+    force = u.sim.actuator_force
+    full, _ = imitation_reward(body, ref, force)
+    full_moved, _ = imitation_reward(body, ref_moved, force)
+    three, _ = imitation_reward(tracked(body), tracked(ref), force)
+    three_moved, _ = imitation_reward(tracked(body), tracked(ref_moved), force)
+    assert np.allclose(reward, full) and (full_moved < full - 0.01).all() and np.allclose(three_moved, three)
+    env.close()
+    env = _vec(start="beginning", reward="three_point")
+    env.reset(seed=0)
+    u = env.unwrapped
+    body = u.sim.bodies
+    reward, *_ = u._evaluate(body, heading_rotation(body.rot[:, 0]))
+    assert np.allclose(reward, imitation_reward(tracked(body), tracked(u.ref.current()), u.sim.actuator_force)[0])
+    env.close()
+
+
+def test_termination_at_a_quarter_metre_of_one_point():
+    sim = np.zeros((4, 3, 3))
+    ref = sim.copy()
+    ref[1, 2, 0], ref[2, 0, 2], ref[3, 1, 1] = 0.26, 0.24, -0.3
+    assert vr_terminated(sim, ref).tolist() == [False, True, False, True]
+    assert vr_terminated(sim, ref, 0.2).tolist() == [False, True, True, True]
+    for shift, ends in ((0.1, False), (0.4, True)):
+        env = _vec(start="beginning")
+        env.reset(seed=0)
+        u = env.unwrapped
+        u.motion_lib.body_pos = u.motion_lib.body_pos.copy()
+        u.motion_lib.body_pos[:, BODY_NAMES.index("R_Hand"), 1] += shift  # one point's reference
+        u.ref._cache = []
+        _, _, terminated, _, info = env.step(u.reference_action())
+        assert terminated.tolist() == [ends, ends], (shift, info["point_error"])
+        env.close()
+
+
+def test_stream_files_round_trip_and_bad_ones_are_refused(tmp_path):
+    lib = MotionLib.load("gesture", progress=False)
+    s = ThreePointStream.from_motion((lib, 0))
+    a = load_stream(write_stream(tmp_path / "q.npz", s.positions, s.quats))
+    b = load_stream(write_stream(tmp_path / "m.npz", s.positions, quat_to_matrix(s.quats), name="mat"))
+    for got in (a, b):
+        assert got.num_frames == lib.lengths[0] and np.allclose(got.positions, lib.body_pos[:, TRACKED], atol=1e-6)
+        assert np.allclose(quat_to_matrix(got.quats), quat_to_matrix(lib.body_quat[:, TRACKED].astype(float)), atol=1e-5)
+    assert a.name == "q" and b.name == "mat"
+    # 60 fps streams are resampled to 30.
+    c = load_stream(write_stream(tmp_path / "f.npz", np.repeat(s.positions, 2, 0)[:-1], np.repeat(s.quats, 2, 0)[:-1], fps=60))
+    assert c.num_frames == s.num_frames and np.allclose(c.positions, s.positions, atol=1e-6)
+
+    def bad(name, **arrays):
+        np.savez(tmp_path / name, **{"positions": s.positions, "rotations": s.quats, **arrays})
+        with pytest.raises(MotionFileError) as e:
+            load_stream(tmp_path / name)
+        assert name in str(e.value)
+        return str(e.value)
+
+    assert "shape" in bad("shape.npz", positions=s.positions[:, :2])
+    nan = s.positions.copy()
+    nan[7, 1, 2] = np.nan
+    assert "frame 7" in bad("nan.npz", positions=nan)
+    assert "at least 2" in bad("short.npz", positions=s.positions[:1], rotations=s.quats[:1])
+    assert "unit" in bad("norm.npz", rotations=s.quats * np.where(np.arange(len(s.quats)) == 4, 2.0, 1.0)[:, None, None])
+    assert "frame 4" in bad("norm2.npz", rotations=s.quats * np.where(np.arange(len(s.quats)) == 4, 2.0, 1.0)[:, None, None])
+    assert "frames" in bad("count.npz", rotations=s.quats[:-3])
+
+
+def test_a_stream_drives_the_env_like_the_clip_it_was_cut_from(walk_stream):
+    # No early termination: an autoreset would restart the two differently (reference state vs
+    # standing pose).
+    clip = _vec(start="beginning", reward="three_point", termination_distance=None)
+    stream = _vec(start="beginning", motions=str(walk_stream), termination_distance=None)
+    clip.reset(seed=0)
+    _, info = stream.reset(seed=0)
+    us, uc = stream.unwrapped, clip.unwrapped
+    assert us.streams is not None and us.motion_lib is None and us.reward_mode == "three_point"
+    assert "ref_body_pos" not in info and info["point_error"].max() < 0.3  # standing pose under the head
+    # Same physical state in both: then observations and rewards must agree step by step.
+    qpos = np.stack([d.qpos.copy() for d in uc.sim.datas])
+    qvel = np.stack([d.qvel.copy() for d in uc.sim.datas])
+    us.sim.set_state(np.arange(2), qpos, qvel)
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        action = uc.reference_action() + rng.uniform(-0.05, 0.05, (2, 69))
+        oc, rc, *_ = clip.step(action)
+        os_, rs, *_ = stream.step(action)
+        assert np.allclose(oc, os_, atol=2e-4) and np.allclose(rc, rs, atol=1e-4)
+    clip.close()
+    stream.close()
+
+
+def test_stream_mode_refuses_what_needs_a_full_body(walk_stream, tmp_path):
+    with pytest.raises(ValueError, match="three_point"):
+        _vec(motions=str(walk_stream), reward="full")
+    with pytest.raises(ValueError, match="absolute"):
+        _vec(motions=str(walk_stream), action_mode="residual")
+    with pytest.raises(ValueError, match="mixed"):
+        _vec(motions=[str(walk_stream), "walk"])
+    with pytest.raises(ValueError, match="reward"):
+        _vec(reward="hands")
+    env = _vec(action_mode="residual")  # clips have joint angles: residual works
+    env.reset(seed=0)
+    assert np.array_equal(env.unwrapped.reference_action(), np.zeros((2, 69), np.float32))
+    env.close()
+
+
+def test_three_point_row_fails_at_the_first_point_beyond_the_threshold():
+    frames = []
+    for t in range(6):
+        sim, ref = np.zeros((3, 3)), np.zeros((3, 3))
+        ref[2, 0] = 0.1 if t < 3 else 0.6  # one hand only: the mean over points stays below 0.5
+        frames.append([sim, ref])
+    row = _three_point_row("x", 0, frames, False, 0.5)
+    assert row["success"] is False and row["fail_frame"] == 3 and np.isnan(row["mpjpe_pa"])
+    assert row["mpjpe_g"] == pytest.approx(1000 * (0.3 + 1.8) / 18)
+
+
+def test_evaluation_on_clips_and_streams(walk_stream):
+    env = gym.make_vec(ID, num_envs=2, motions=["stand", "gesture", "crouch"], termination_distance=None,
+                       autoreset_mode="Disabled")
+    result = smpl_envs.evaluate(lambda obs: env.unwrapped.reference_action(), env, progress=False)
+    rows, s = result.rows, result.summary
+    assert [r["name"] for r in rows] == ["stand", "gesture", "crouch"] and s["clips"] == 3
+    # PD tracking of the reference without a policy loses balance: a clip stops at its fail frame.
+    assert all(r["frames"] == (r["fail_frame"] + 1 if r["fail_frame"] >= 0 else lengths) for r, lengths
+               in zip(rows, env.unwrapped.motion_lib.lengths))
+    assert all(np.isfinite(r["body_mpjpe_g"]) and r["success"] == (r["fail_frame"] < 0) for r in rows)
+    weights = np.array([r["frames_pos"] for r in rows])
+    assert s["all_mpjpe_g"] == pytest.approx((weights * [r["mpjpe_g"] for r in rows]).sum() / weights.sum())
+    assert s["body_clips"] == 3 and np.isfinite(s["body_all_mpjpe_g"]) and "full body" in result.table()
+    env.close()
+    # A stream: no full body, a policy-free baseline (hold the start pose's joint angles: zero
+    # action is the T-pose) still gets a row with three-point errors.
+    result = smpl_envs.evaluate(lambda obs: np.zeros((len(obs), 69)), ID, motions=str(walk_stream), progress=False)
+    (row,) = result.rows
+    assert "body_mpjpe_g" not in row and "body_clips" not in result.summary and np.isfinite(row["mpjpe_g"])

@@ -13,7 +13,7 @@ that the next `set_state` / `step` overwrite in place, as `CPUSim`'s arrays are)
 | qpos, qvel | (N, nq), (N, nv) | whole-model state |
 | ctrl | (N, nu) | PD targets of the last step |
 | actuator_force | (N, nu) | of the last substep |
-| sensordata | (N, nsensordata) | of the last substep (acceleration-stage sensors included) |
+| sensordata | (N, nsensordata) | of the last substep (acceleration-stage sensors included; a fresh tensor if the model has those) |
 | bodies | BodyState of (N, 24, ...) | the humanoid's 24 bodies, world frame (a fresh tensor each read) |
 | overflow | (N,) int32 | MuJoCo Warp's overflow bits per world (`mujoco_warp.OverflowType`), cleared by `set_state` |
 
@@ -27,8 +27,9 @@ Observed state (the CPU backend's step1/step2 convention): each substep is `step
 (MuJoCo Warp has both halves too), and `set_state` ends with `step1`. So positions, rotations and
 com-based velocities always describe the *current* state, as in `CPUSim`, with no extra forward
 call. One difference of MuJoCo Warp is handled here: its `step1` clears every sensor, also the
-acceleration-stage ones (contact, touch, force) that the `step2` before it computed and that CPU
-MuJoCo keeps; their columns are saved after the last `step2` and written back after `step1`.
+acceleration-stage ones (touch, force, accelerometer) that the `step2` before it computed and that
+CPU MuJoCo keeps (its `step2` adds onto the cleared values, so they cannot simply be written
+back); they are copied aside after the last `step2`, and `sensordata` merges them in.
 
 Divergence: a world whose qpos or qvel turns non-finite, or whose speed reaches `cpu.MAX_SPEED`,
 is set in the (N,) bool tensor `step` returns; the task resets that world alone with `set_state`.
@@ -153,18 +154,18 @@ class WarpSim:
             self._stream = wp.get_stream(self._wp_device) if self._cuda else None
         d, view = self.wp_data, wp.to_torch
         self.qpos, self.qvel, self.ctrl = view(d.qpos), view(d.qvel), view(d.ctrl)
-        self.actuator_force, self.sensordata = view(d.actuator_force), view(d.sensordata)
+        self.actuator_force, self._sensordata = view(d.actuator_force), view(d.sensordata)
         self.overflow = view(d.overflow)
         self._xpos, self._xmat, self._cvel = view(d.xpos), view(d.xmat), view(d.cvel)
         self._subtree_com = view(d.subtree_com)
         # Everything a world carries from one step to the next: put back for inactive worlds.
-        self._carried = [self.qpos, self.qvel, self.ctrl, view(d.act), view(d.qacc_warmstart), view(d.time),
-                         self.actuator_force, self.sensordata]
         acc = np.zeros(model.nsensordata, bool)
         for i in np.flatnonzero(model.sensor_needstage == mujoco.mjtStage.mjSTAGE_ACC):
             acc[model.sensor_adr[i]:model.sensor_adr[i] + model.sensor_dim[i]] = True
         self._acc_sensors = torch.as_tensor(acc, device=self.device) if acc.any() else None
-        self._sensor_buf = torch.zeros_like(self.sensordata)
+        self._sensor_acc = torch.zeros_like(self._sensordata)
+        self._carried = [self.qpos, self.qvel, self.ctrl, view(d.act), view(d.qacc_warmstart), view(d.time),
+                         self.actuator_force, self._sensordata, self._sensor_acc]
         self._bad = torch.zeros(self.num_worlds, dtype=torch.bool, device=self.device)
         self._parked = wp.zeros(self.num_worlds, dtype=wp.int32, device=self._wp_device)
         self._parked_t = wp.to_torch(self._parked)
@@ -207,6 +208,7 @@ class WarpSim:
             self.qpos[ids] = qpos
             self.qvel[ids] = qvel
         self.actuator_force.masked_fill_(mask[:, None], 0.0)  # reset_data leaves it
+        self._sensor_acc.masked_fill_(mask[:, None], 0.0)
         self._parked_t.masked_fill_(mask, 0)
         self._park()  # a bad state placed here is parked now and reported by the next step
         self._step1()
@@ -244,9 +246,13 @@ class WarpSim:
             self._step1()
 
     def _substeps_eager(self) -> None:
-        for _ in range(self.substeps):
+        for k in range(self.substeps):
             mjw.step2(self.wp_model, self.wp_data)
             self._park()
+            if k == self.substeps - 1 and self._acc_sensors is not None:
+                # step1 zeroes every sensor (MuJoCo Warp's step2 adds onto zeroed values), while
+                # CPU MuJoCo keeps the acceleration-stage ones of the last step2: keep a copy.
+                self._sensor_acc.copy_(self._sensordata)
             self._step1()
 
     def _park(self) -> None:
@@ -260,14 +266,15 @@ class WarpSim:
         self._graph = capture.graph
 
     def _step1(self) -> None:
-        if self._acc_sensors is None:
-            mjw.step1(self.wp_model, self.wp_data)
-            return
-        # step1 zeroes every sensor; CPU MuJoCo keeps the acceleration-stage ones that the last
-        # step2 computed (contact sensors), so save them and put them back.
-        self._sensor_buf.copy_(self.sensordata)
         mjw.step1(self.wp_model, self.wp_data)
-        torch.where(self._acc_sensors, self._sensor_buf, self.sensordata, out=self.sensordata)
+
+    @property
+    def sensordata(self) -> torch.Tensor:
+        """(N, nsensordata) after the last substep, acceleration-stage sensors (touch, force,
+        accelerometer) included as on the CPU; a view when the model has none of those."""
+        if self._acc_sensors is None:
+            return self._sensordata
+        return torch.where(self._acc_sensors, self._sensor_acc, self._sensordata)
 
     def _run(self, fn, *args) -> None:
         # On CUDA, Warp's stream runs after what torch queued before, and torch's after Warp's.

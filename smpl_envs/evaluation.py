@@ -476,7 +476,9 @@ class ThreePointProtocol(ClipProtocol):
 
     * A clip fails at the first frame where any of the three points (Head, L_Hand, R_Hand) is
       farther than `threshold` from its reference (PULSE's paper; its code trains at 0.25 m);
-      tracking stops there. A divergence fails it too.
+      tracking stops there. Frames before the env's `grace_steps` (streams: the hands moving from
+      the standing start pose to the stream's) are not tested, but their errors count. A
+      divergence fails it too.
     * Per clip: success, fail_frame, and `metrics.clip_metrics` of the three points' trajectories
       (E_g-mpjpe, E_acc, E_vel in mm; E_mpjpe relative to the head; E_pa-mpjpe is NaN, a
       similarity fit of three points says nothing); where the clip's full body is known, the
@@ -522,6 +524,7 @@ def _run_three_point(policy: Callable, env, threshold: float, progress: bool) ->
     u = getattr(env, "unwrapped", env)
     refs = u.references
     n, m = u.num_envs, refs.num_motions
+    grace = int(getattr(u, "grace_steps", 0))
     clip = np.full(n, -1, np.int64)
     frames: list[list] = [[] for _ in range(n)]  # per world: (sim points, ref points[, sim body, ref body])
     broke = np.zeros(n, bool)
@@ -533,6 +536,7 @@ def _run_three_point(policy: Callable, env, threshold: float, progress: bool) ->
         for k, w in enumerate(worlds):
             frames[w].append([a[k] for a in arrays])
         stop = np.linalg.norm(arrays[0] - arrays[1], axis=-1).max(axis=-1) > threshold
+        stop &= np.array([len(frames[w]) > grace for w in worlds], bool)  # frame index >= grace
         if terminated is not None:
             broke[worlds] = terminated[worlds]
             stop |= terminated[worlds] | truncated[worlds]
@@ -549,7 +553,8 @@ def _run_three_point(policy: Callable, env, threshold: float, progress: bool) ->
         while True:
             while len(done):
                 for w in done:
-                    rows[clip[w]] = _three_point_row(refs.names[clip[w]], int(clip[w]), frames[w], broke[w], threshold)
+                    rows[clip[w]] = _three_point_row(refs.names[clip[w]], int(clip[w]), frames[w], broke[w],
+                                                     threshold, grace)
                     frames[w], clip[w], broke[w] = [], -1, False
                     bar.update(1)
                 take = done[:m - next_clip]
@@ -574,14 +579,15 @@ def _run_three_point(policy: Callable, env, threshold: float, progress: bool) ->
     return rows
 
 
-def _three_point_row(name: str, motion_id: int, frames: list, broke: bool, threshold: float) -> dict:
+def _three_point_row(name: str, motion_id: int, frames: list, broke: bool, threshold: float,
+                     grace: int = 0) -> dict:
     """One finished clip's row (ThreePointProtocol's docstring)."""
     tracks = [np.stack(t) for t in zip(*frames)]
     # A diverged world's last frame may be non-finite: measure the frames before it.
     cut = len(frames) - 1 if broke and not all(np.isfinite(t[-1]).all() for t in tracks) else len(frames)
     sim, ref = tracks[0][:cut], tracks[1][:cut]
     row = metrics.clip_metrics(sim, ref, threshold)
-    over = np.flatnonzero(np.linalg.norm(sim - ref, axis=-1).max(axis=-1) > threshold)
+    over = np.flatnonzero(np.linalg.norm(sim - ref, axis=-1).max(axis=-1)[grace:] > threshold) + grace
     row.update(success=not over.size, fail_frame=int(over[0]) if over.size else -1, mpjpe_pa=float("nan"))
     if broke and row["success"]:
         row.update(success=False, fail_frame=len(frames) - 1, frames=len(frames))

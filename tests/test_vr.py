@@ -12,7 +12,7 @@ from gymnasium.utils.env_checker import check_env
 
 import smpl_envs
 from smpl_envs.envs.imitation import imitation_reward
-from smpl_envs.envs.vr import VR_GOAL_LAYOUT, tracked, vr_terminated
+from smpl_envs.envs.vr import VR_GOAL_LAYOUT, tracked, vr_terminated, yaw_of
 from smpl_envs.evaluation import _three_point_row
 from smpl_envs.features import body_goal_obs, heading_rotation, layout_size, tracking_obs
 from smpl_envs.humanoid import BODY_NAMES
@@ -236,6 +236,32 @@ def test_three_point_row_fails_at_the_first_point_beyond_the_threshold():
     row = _three_point_row("x", 0, frames, False, 0.5)
     assert row["success"] is False and row["fail_frame"] == 3 and np.isnan(row["mpjpe_pa"])
     assert row["mpjpe_g"] == pytest.approx(1000 * (0.3 + 1.8) / 18)
+    # Frames before the grace period are not tested; their errors still count.
+    assert _three_point_row("x", 0, frames, False, 0.5, grace=4)["fail_frame"] == 4
+    row = _three_point_row("x", 0, frames, False, 0.5, grace=6)
+    assert row["success"] and row["fail_frame"] == -1 and row["mpjpe_g"] == pytest.approx(1000 * 2.1 / 18)
+
+
+def test_streams_start_standing_under_the_head_with_a_grace_period(tmp_path):
+    lib = MotionLib.load("run", progress=False)
+    s = ThreePointStream.from_motion((lib, 0))
+    path = write_stream(tmp_path / "run.npz", s.positions, s.quats)
+    ends = []
+    for grace in (0, None):
+        env = _vec(motions=str(path), start="beginning", grace_steps=grace)
+        _, info = env.reset(seed=0)
+        u = env.unwrapped
+        # Head over the stream's head, facing its way; the running hand starts far off.
+        assert np.allclose(info["point_pos"][:, 0, :2], s.positions[0, 0, :2], atol=1e-6)
+        assert info["point_error"][:, 2].min() > 0.25
+        head_rot = u.sim.bodies.rot[:, HEAD]
+        assert np.allclose(yaw_of(head_rot), yaw_of(quat_to_matrix(s.quats[:1, 0])), atol=1e-6)
+        _, _, terminated, _, _ = env.step(np.tile(u._start_pose[7:] / u.action_scale, (2, 1)))
+        ends.append(terminated.tolist())
+        env.close()
+    assert ends == [[True, True], [False, False]]
+    with pytest.raises(ValueError, match="grace_steps"):
+        _vec(grace_steps=-1)
 
 
 def test_evaluation_on_clips_and_streams(walk_stream):

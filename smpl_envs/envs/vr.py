@@ -10,7 +10,9 @@ References come from either
   `ThreePointLib`; format in `smpl_envs.motion.three_point`): no full body. Episodes start from
   a standing pose (`stream_start_pose`: the first frame of the shipped "stand" clip by default,
   or "rest", the T-pose) turned and moved so that its head's heading and ground position are the
-  stream's at the start frame; velocities zero.
+  stream's at the start frame; velocities zero. The stream's hands may start far from that
+  pose's, so the first `grace_steps` steps (15, half a second) are not checked for termination
+  (nor for failure by the evaluation).
 
 Observation (float32, heading frame of the simulated humanoid; `t+1` is the next reference frame):
 
@@ -35,8 +37,9 @@ Reward (`reward=`; each term in `info["reward_<term>"]`):
 "auto" picks "full" for clips and "three_point" for streams. Weights and scales: kwargs.
 
 Episode: ends when any of the three points is more than `termination_distance` (0.25 m, PULSE's
-code; None disables) from its reference, or the simulation diverges; truncated at the reference's
-last frame.
+code; None disables) from its reference (not in the first `grace_steps` steps of an episode: 0
+for clips, which start in the reference state, 15 for streams), or the simulation diverges;
+truncated at the reference's last frame.
 
 Actions: `action_mode="absolute"` (PD target = pi x a) or `"residual"` (PD target = the next
 reference frame's joint angles + residual_scale x range x a), as Imitation-v0; residual needs
@@ -67,6 +70,9 @@ from .reference import RESIDUAL_SCALE, ReferenceTracker, check_action_mode
 
 VR_GOAL_LAYOUT = goal_layout(len(TRACKED))
 TERMINATION_DISTANCE = 0.25
+# Steps after a stream start without the termination test: the standing start pose only matches
+# the stream's head, and the hands need a moment to reach theirs (half a second).
+STREAM_GRACE_STEPS = 15
 REWARDS = ("auto", "full", "three_point")
 MARKER_RGBA = (0.1, 0.5, 0.95, 0.85)  # the three reference points in renders
 HEAD = BODY_NAMES.index("Head")
@@ -105,7 +111,8 @@ class VRTrackingVecEnv(HumanoidVecEnv):
     lin_vel, ang_vel), energy_weight, termination_distance (m, any of the three points; None
     disables), action_mode ("absolute" or "residual", clips only), residual_scale,
     stream_start_pose ("stand": a clip name or file whose first frame streams start from, or
-    "rest"), and the core's (start, beginning_share, cache, max_episode_steps, autoreset_mode,
+    "rest"), grace_steps (steps after a reset without the termination test; None: 0 for clips,
+    STREAM_GRACE_STEPS for streams), and the core's (start, beginning_share, cache, max_episode_steps, autoreset_mode,
     substeps, num_threads, render_mode, render_size, render_world, show_markers).
     """
 
@@ -116,7 +123,8 @@ class VRTrackingVecEnv(HumanoidVecEnv):
                  reward_weights: dict | None = None, reward_scales: dict | None = None,
                  energy_weight: float = ENERGY_WEIGHT,
                  termination_distance: float | None = TERMINATION_DISTANCE, action_mode: str = "absolute",
-                 residual_scale: float = RESIDUAL_SCALE, stream_start_pose: str = "stand", **kwargs):
+                 residual_scale: float = RESIDUAL_SCALE, stream_start_pose: str = "stand",
+                 grace_steps: int | None = None, **kwargs):
         if motions is None:
             raise ValueError("motions: VR tracking needs references (clips or three-point streams)")
         if reward not in REWARDS:
@@ -138,6 +146,11 @@ class VRTrackingVecEnv(HumanoidVecEnv):
             if action_mode == "residual":
                 raise ValueError("action_mode='residual' adds to the reference joint angles, which a "
                                  "three-point stream does not have: use action_mode='absolute'")
+        if grace_steps is None:
+            grace_steps = STREAM_GRACE_STEPS if self.streams is not None else 0
+        if isinstance(grace_steps, bool) or not isinstance(grace_steps, (int, np.integer)) or grace_steps < 0:
+            raise ValueError(f"grace_steps must be an integer >= 0 or None, got {grace_steps!r}")
+        self.grace_steps = int(grace_steps)
         self.reward_mode = ("three_point" if self.streams is not None else "full") if reward == "auto" else reward
         super().__init__(num_envs, motions=None if self.streams is not None else motions, **kwargs)
         self.ref = ReferenceTracker(self.motion_lib if self.streams is None else self.streams, self.num_envs)
@@ -228,6 +241,8 @@ class VRTrackingVecEnv(HumanoidVecEnv):
                                              self.reward_weights, self.reward_scales, self.energy_weight)
         terminated = (np.zeros(self.num_envs, bool) if self.termination_distance is None
                       else vr_terminated(body.pos[:, TRACKED], ref_points.pos, self.termination_distance))
+        if self.grace_steps:
+            terminated &= self.elapsed >= self.grace_steps
         return reward, terms, terminated, self.ref.at_end()
 
     def _observe(self, body, heading):

@@ -283,3 +283,34 @@ def test_evaluation_on_clips_and_streams(walk_stream):
     result = smpl_envs.evaluate(lambda obs: np.zeros((len(obs), 69)), ID, motions=str(walk_stream), progress=False)
     (row,) = result.rows
     assert "body_mpjpe_g" not in row and "body_clips" not in result.summary and np.isfinite(row["mpjpe_g"])
+
+
+def test_vr_stream_example_runs(tmp_path):
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, str(root / "examples" / "vr_stream.py"), "--clip", "crouch",
+                          "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert load_stream(tmp_path / "crouch_3p.npz").num_frames == MotionLib.load("crouch", progress=False).lengths[0]
+    stand = json.loads((tmp_path / "vr_crouch_stand.json").read_text())
+    pd = json.loads((tmp_path / "vr_crouch_pd-reference.json").read_text())
+    assert "body_clips" not in stand["summary"] and pd["summary"]["body_clips"] == 1
+    assert "full body" in out.stdout
+
+
+def test_a_directory_or_list_of_streams(tmp_path, walk_stream):
+    lib = MotionLib.load("gesture", progress=False)
+    s = ThreePointStream.from_motion((lib, 0))
+    write_stream(tmp_path / "a" / "gesture.npz", s.positions, s.quats)
+    write_stream(tmp_path / "a" / "deeper" / "again.npz", s.positions[:50], s.quats[:50])
+    env = _vec(motions=str(tmp_path / "a"))
+    assert env.unwrapped.streams.names == ["again", "gesture"] and list(env.unwrapped.streams.lengths) == [50, 241]
+    env.close()
+    env = _vec(motions=[str(walk_stream), str(tmp_path / "a" / "gesture.npz")])
+    obs, info = env.reset(seed=0, options={"motion_ids": [1, 0], "start": "beginning"})
+    assert info["motion_id"].tolist() == [1, 0] and np.allclose(info["ref_point_pos"][0], s.positions[0], atol=1e-6)
+    env.close()

@@ -21,6 +21,7 @@ ENV_IDS = {
     "SMPL/Strike-v0": ("smpl_envs.envs.strike:StrikeVecEnv", 300),
     "SMPL/VRTracking-v0": ("smpl_envs.envs.vr:VRTrackingVecEnv", None),
     "SMPL/Terrain-v0": ("smpl_envs.envs.terrain:TerrainVecEnv", 300),
+    "SMPL/Recovery-v0": ("smpl_envs.envs.recovery:RecoveryVecEnv", 300),
 }
 
 

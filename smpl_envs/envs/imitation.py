@@ -46,6 +46,12 @@ discriminator features of the step (232).
 
 Evaluation (`smpl_envs.evaluate`, `smpl-envs eval`): PHC's protocol, every clip once from its
 first frame; success, E_g-mpjpe, E_mpjpe, E_acc, E_vel (`smpl_envs.evaluation.ClipProtocol`).
+
+Perpetual control: `recovery=True` (or a dict of Recovery-v0's recovery kwargs) switches on
+fail-state recovery (`smpl_envs.envs.recovery`): a world whose pelvis is more than 0.5 m from the
+reference's gets the recovery goal and reward instead of terminating, and the ordinary goal back
+once within reach, in the same episode. `info` then adds `reward_point`, `recovering`,
+`root_distance` and `start_kind`. Off (the default), nothing here changes.
 """
 
 from __future__ import annotations
@@ -118,7 +124,8 @@ class ImitationVecEnv(HumanoidVecEnv):
     kwargs: motions ("walk"; clip name, file, directory, saved library, list, or MotionLib),
     reward_weights / reward_scales (dicts over pos, rot, lin_vel, ang_vel), energy_weight,
     termination_distance (m; None disables early termination), action_mode ("absolute" or
-    "residual"), residual_scale, and the core's (start, cache, max_episode_steps,
+    "residual"), residual_scale, recovery (False; True or a dict of recovery kwargs: see
+    `smpl_envs.envs.recovery`), and the core's (start, cache, max_episode_steps,
     autoreset_mode, substeps, num_threads, render_mode, render_size, render_world,
     show_markers).
     """
@@ -130,7 +137,7 @@ class ImitationVecEnv(HumanoidVecEnv):
     def __init__(self, num_envs: int = 1, *, motions="walk", reward_weights: dict | None = None,
                  reward_scales: dict | None = None, energy_weight: float = ENERGY_WEIGHT,
                  termination_distance: float | None = TERMINATION_DISTANCE, action_mode: str = "absolute",
-                 residual_scale: float = RESIDUAL_SCALE, **kwargs):
+                 residual_scale: float = RESIDUAL_SCALE, recovery: bool | dict = False, **kwargs):
         if motions is None:
             raise ValueError("motions: imitation needs reference clips (a clip name, file, directory or list)")
         self.reward_weights = _merge("reward_weights", REWARD_WEIGHTS, reward_weights)
@@ -144,6 +151,16 @@ class ImitationVecEnv(HumanoidVecEnv):
         self.action_mode = action_mode
         super().__init__(num_envs, motions=motions, **kwargs)
         self.ref = ReferenceTracker(self.motion_lib, self.num_envs)
+        self.recovery = None
+        if recovery is not False:
+            if recovery is True:
+                recovery = {}
+            if not isinstance(recovery, dict):
+                raise ValueError(f"recovery must be True, False or a dict of recovery kwargs, got {recovery!r}")
+            from .recovery import RecoveryController  # here: recovery.py builds on this module
+
+            self.recovery = RecoveryController(self, **recovery)
+            self.reset_options = (*self.reset_options, "recovery_start")
 
     # The tracker's arrays, for callers that read where each world is in its clip.
     motion_id = property(lambda self: self.ref.motion_id)
@@ -153,6 +170,9 @@ class ImitationVecEnv(HumanoidVecEnv):
     def _reset_task(self, ids, options):
         qpos, qvel = super()._reset_task(ids, options)
         self.ref.begin(ids, self.start_motion[ids], self.start_frame[ids])
+        if self.recovery is not None:
+            qpos, qvel = self.recovery.reset(ids, qpos, qvel, self.motion_lib.body_pos[self.ref.frame[ids], 0],
+                                             options.get("recovery_start"), self.np_random)
         return qpos, qvel
 
     def _ctrl(self, actions):
@@ -167,14 +187,22 @@ class ImitationVecEnv(HumanoidVecEnv):
                                          self.reward_scales, self.energy_weight)
         terminated = (np.zeros(self.num_envs, bool) if self.termination_distance is None
                       else imitation_terminated(body, ref, self.termination_distance))
+        if self.recovery is not None:
+            return self.recovery.evaluate(body, ref, reward, terms, terminated, self.ref.at_end(), self.np_random)
         return reward, terms, terminated, self.ref.at_end()
 
     def _observe(self, body, heading):
-        return tracking_obs(body, self.ref.next(), self.goal, heading)
+        ref = self.ref.next()
+        if self.recovery is not None:
+            ref = self.recovery.goal_reference(body, ref)
+        return tracking_obs(body, ref, self.goal, heading)
 
     def _task_info(self, body):
-        return {"motion_id": self.ref.motion_id.copy(), "motion_time": self.ref.motion_time(),
+        info = {"motion_id": self.ref.motion_id.copy(), "motion_time": self.ref.motion_time(),
                 "ref_body_pos": self.ref.current().pos.copy()}  # a copy: the array is cached
+        if self.recovery is not None:
+            info.update(self.recovery.info())
+        return info
 
     def _markers(self, world):
         return [(self.motion_lib.body_pos[self.ref.frame[world]], MARKER_RGBA, 0.03)]

@@ -1,0 +1,430 @@
+"""`SMPL/Recovery-v0`: fail-state recovery (PHC, REFERENCE.md sections 3 and 8), and the recovery
+behaviour `gym.make("SMPL/Imitation-v0", recovery=True)` switches on (perpetual control: one
+policy imitates, and when it falls or drifts away it gets back without a reset).
+
+Recovery-v0 is Imitation-v0 (same observation, actions, reward terms) with recovery on, fallen
+and far starts, the default clip "stand" and the reference held at its clip's last frame past
+the clip's end (episodes end at the 300-step time limit, not at the clip's end).
+
+Starts (`starts=`, a mapping of start kind -> probability that sums to 1):
+
+| kind | start state |
+|---|---|
+| reference | reference state initialisation (a random frame of a clip, as Imitation) |
+| fallen | a cached fallen state (`smpl_envs.envs.fallen`) placed under the reference root |
+| far | the reference-state pose moved U[far_distance] (2-5 m) away at a random bearing |
+| fallen+far | a fallen state, far away as above |
+
+Default mix (section 8's training mix, with far starts added so the far case is learnt too):
+reference 0.6, fallen 0.3, far 0.05, fallen+far 0.05; and a world that would terminate goes on
+as a recovery episode instead with probability `continue_prob` (0.5) and a `grace_steps` (90,
+3 s) grace. Imitation with recovery=True starts from the reference only and never continues
+(continue_prob 0), unless told otherwise through `recovery={...}`.
+
+Goal forms, per world and step (batched masks; d = distance between the simulated and the
+reference pelvis, 3D, so lying at the reference spot is still "far"):
+
+* d <= switch_distance (0.5 m): the ordinary imitation goal and reward.
+* d > switch_distance: the recovery form. Observation: every non-root reference body
+  (position, rotation, velocities) is replaced by the simulated body's own, so its goal columns
+  say "keep as you are", and the reference root is clamped to `clamp_distance` (5 m) along the
+  same direction. Reward (`info["reward_point"]` and the scaled imitation terms):
+      point      point_scale x min(d_prev - d, point_clip)   (9 x min(progress, 1/3), section 8's
+                 code form; progress in metres per step towards the reference root)
+      imitation  recovery_imitation_weight (0.5) x the imitation terms against the real
+                 reference (PHC's 0.5 style slot, which this project fills with imitation: its
+                 rotation term rewards an upright pose even far away)
+      energy     as Imitation.
+  The observation's form is decided by the distance to the reference it shows (the next frame),
+  the reward's by the current one.
+
+Episode rules: no termination while recovering (d > switch_distance) nor during the grace that
+follows a recovering step, a fallen or far start, or a continued termination (`grace_steps`);
+otherwise Imitation's relaxed early termination (termination_distance). A diverged simulation
+always ends the episode; the time limit truncates it.
+
+`info` adds `recovering` ((N,) bool), `root_distance` ((N,) m) and `start_kind` ((N,) index into
+START_KINDS).
+
+Evaluation (`smpl-envs eval`): `RecoveryProtocol`, PHC's Succ-5s / Succ-10s for fallen, far (3 m)
+and fallen+far starts on the standing clip (module `RecoveryProtocol` docstring).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from ..evaluation import EvalProtocol, EvalResult, _act, _check_disabled_autoreset
+from ..features import BodyState
+from .base import check_range
+from .fallen import FallenStates
+from .imitation import ImitationVecEnv
+
+START_KINDS = ("reference", "fallen", "far", "fallen+far")
+DEFAULT_STARTS = {"reference": 0.6, "fallen": 0.3, "far": 0.05, "fallen+far": 0.05}
+SWITCH_DISTANCE = 0.5
+CLAMP_DISTANCE = 5.0
+POINT_SCALE = 9.0
+POINT_CLIP = 1.0 / 3.0
+RECOVERY_IMITATION_WEIGHT = 0.5
+GRACE_STEPS = 90
+FAR_DISTANCE = (2.0, 5.0)
+FALLEN, FAR = np.array([False, True, False, True]), np.array([False, False, True, True])
+
+
+# ---------------------------------------------------------------------- pure functions
+def check_starts(starts) -> np.ndarray:
+    """(4,) probabilities over START_KINDS from a {kind: probability} mapping summing to 1."""
+    if not isinstance(starts, Mapping) or not starts:
+        raise ValueError(f"starts must be a mapping of start kind -> probability over {START_KINDS}, got {starts!r}")
+    unknown = sorted(set(starts) - set(START_KINDS))
+    if unknown:
+        raise ValueError(f"starts: unknown start kind(s) {unknown}; known: {list(START_KINDS)}")
+    try:
+        p = np.array([float(starts.get(k, 0.0)) for k in START_KINDS])
+    except (TypeError, ValueError):
+        raise ValueError(f"starts: probabilities must be numbers, got {starts!r}") from None
+    if not np.isfinite(p).all() or (p < 0).any() or abs(p.sum() - 1.0) > 1e-6:
+        raise ValueError(f"starts: probabilities must be >= 0 and sum to 1, got {starts!r} (sum {p.sum():.6g})")
+    return p / p.sum()
+
+
+def root_distance(sim: BodyState, ref: BodyState) -> np.ndarray:
+    """(N,) distance (m) between the simulated and the reference pelvis."""
+    d = ref.pos[:, 0] - sim.pos[:, 0]
+    return np.sqrt((d * d).sum(-1))
+
+
+def point_reward(d_prev, d, scale: float = POINT_SCALE, clip: float = POINT_CLIP):
+    """(N,) root-distance progress reward scale x min(d_prev - d, clip): positive when closing in."""
+    return scale * np.minimum(np.asarray(d_prev) - np.asarray(d), clip)
+
+
+def recovery_reference(sim: BodyState, ref: BodyState, far: np.ndarray, clamp: float = CLAMP_DISTANCE) -> BodyState:
+    """The reference the goal shows: for worlds in the mask `far`, non-root bodies replaced by the
+    simulated ones and the root position clamped to `clamp` m from the simulated root along the
+    same direction; other worlds keep `ref`."""
+    delta = ref.pos[:, 0] - sim.pos[:, 0]
+    dist = np.sqrt((delta * delta).sum(-1))
+    root = sim.pos[:, 0] + delta * np.minimum(1.0, clamp / np.maximum(dist, 1e-9))[:, None]
+    f3, f4 = far[:, None, None], far[:, None, None, None]
+    out = {}
+    for name, f in (("pos", f3), ("rot", f4), ("lin_vel", f3), ("ang_vel", f3)):
+        a = np.where(f, getattr(sim, name), getattr(ref, name))
+        a[:, 0] = getattr(ref, name)[:, 0]
+        out[name] = a
+    out["pos"][:, 0] = np.where(far[:, None], root, ref.pos[:, 0])
+    return BodyState(dof_pos=ref.dof_pos, dof_vel=ref.dof_vel, **out)
+
+
+def recovery_frame(dist, threshold: float = 0.5, hold_frames: int = 30) -> np.ndarray:
+    """First frame t at which a trial is back and stays: dist[t .. t + hold_frames] all <=
+    threshold (a window that must lie inside the trial); -1 if there is none. `dist` (..., T)
+    mean body distances per frame (non-finite counts as beyond); returns (...) ints."""
+    dist = np.asarray(dist, float)
+    bad = ~(dist <= threshold)
+    h = int(hold_frames)
+    t = dist.shape[-1]
+    if t < h + 1:
+        return np.full(dist.shape[:-1], -1, np.int64)
+    cs = np.concatenate([np.zeros((*dist.shape[:-1], 1)), np.cumsum(bad, axis=-1)], axis=-1)
+    window_bad = cs[..., h + 1:] - cs[..., :t - h]  # bad frames in [s, s + h] for s = 0 .. T-h-1
+    ok = window_bad == 0
+    return np.where(ok.any(-1), ok.argmax(-1), -1).astype(np.int64)
+
+
+def recovered_within(frames, seconds: float, fps: float = 30.0) -> np.ndarray:
+    """Succ-<seconds>s per trial: back (recovery_frame >= 0) at a frame <= seconds x fps."""
+    frames = np.asarray(frames)
+    return (frames >= 0) & (frames <= seconds * fps + 1e-9)
+
+
+# ---------------------------------------------------------------------- per-world recovery state
+class RecoveryController:
+    """The recovery state and rules of an imitation env's worlds (module docstring); the env
+    calls it from its hooks. kwargs are the recovery kwargs of Recovery-v0."""
+
+    def __init__(self, env, *, starts=None, switch_distance=SWITCH_DISTANCE, clamp_distance=CLAMP_DISTANCE,
+                 point_scale=POINT_SCALE, point_clip=POINT_CLIP, recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT,
+                 grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
+                 fallen_cache_size=128, fallen_seed=0):
+        self.p = check_starts({"reference": 1.0} if starts is None else starts)
+        for name, v in (("switch_distance", switch_distance), ("clamp_distance", clamp_distance),
+                        ("point_clip", point_clip)):
+            if isinstance(v, bool) or not np.isfinite(float(v)) or not float(v) > 0:
+                raise ValueError(f"{name} must be a positive distance in metres, got {v!r}")
+        for name, v in (("point_scale", point_scale), ("recovery_imitation_weight", recovery_imitation_weight)):
+            if isinstance(v, bool) or not np.isfinite(float(v)) or float(v) < 0:
+                raise ValueError(f"{name} must be a non-negative number, got {v!r}")
+        if isinstance(grace_steps, bool) or not isinstance(grace_steps, (int, np.integer)) or grace_steps < 0:
+            raise ValueError(f"grace_steps must be a non-negative integer, got {grace_steps!r}")
+        if isinstance(continue_prob, bool) or not 0.0 <= float(continue_prob) <= 1.0:
+            raise ValueError(f"continue_prob must be a probability in [0, 1], got {continue_prob!r}")
+        self.far_distance = check_range("far_distance", far_distance, 0.0)
+        self.switch_distance, self.clamp_distance = float(switch_distance), float(clamp_distance)
+        self.point_scale, self.point_clip = float(point_scale), float(point_clip)
+        self.imitation_weight = float(recovery_imitation_weight)
+        self.grace_steps, self.continue_prob = int(grace_steps), float(continue_prob)
+        self.hold_end = bool(hold_end)
+        self.fallen = FallenStates(fallen_cache_size, fallen_seed)
+        self.hum = env.humanoid
+        n = env.num_envs
+        self.start_kind = np.zeros(n, np.int64)
+        self.recovering = np.zeros(n, bool)
+        self.root_distance = np.zeros(n)
+        self.grace = np.zeros(n, np.int64)
+
+    def reset(self, ids, qpos, qvel, ref_root, kind, rng):
+        """Start states of worlds `ids` from their reference-state (qpos, qvel) and reference
+        roots (n, 3): drawn from the start mix, or `kind` (a START_KINDS name, or one per world)."""
+        n = len(ids)
+        if kind is None:
+            kinds = rng.choice(len(START_KINDS), n, p=self.p)
+        else:
+            names = [kind] * n if isinstance(kind, str) else list(kind)
+            bad = sorted({str(k) for k in names} - set(START_KINDS))
+            if bad or len(names) != n:
+                raise ValueError(f"reset option recovery_start must be one of {START_KINDS} or {n} of them, got {kind!r}")
+            kinds = np.array([START_KINDS.index(k) for k in names], np.int64)
+        fallen, far = FALLEN[kinds], FAR[kinds]
+        q = qpos[:, self.hum.qpos]
+        if fallen.any():
+            q[fallen] = self.fallen.place(rng, ref_root[fallen, :2])
+            qvel[np.ix_(fallen, np.arange(self.hum.qvel.start, self.hum.qvel.stop))] = 0.0
+        if far.any():
+            r = rng.uniform(*self.far_distance, far.sum())
+            bearing = rng.uniform(0.0, 2.0 * np.pi, far.sum())
+            q[far, :2] += r[:, None] * np.stack([np.cos(bearing), np.sin(bearing)], -1)
+        qpos[:, self.hum.qpos] = q
+        self.start_kind[ids] = kinds
+        self.grace[ids] = np.where(kinds > 0, self.grace_steps, 0)
+        d = np.linalg.norm(q[:, :3] - ref_root, axis=-1)
+        self.root_distance[ids] = d
+        self.recovering[ids] = d > self.switch_distance
+        return qpos, qvel
+
+    def evaluate(self, body, ref, reward, terms, terminated, truncated, rng):
+        """Reward, terms, terminated and truncated of the recovery rules, from Imitation's."""
+        d = root_distance(body, ref)
+        rec = d > self.switch_distance
+        point = point_reward(self.root_distance, d, self.point_scale, self.point_clip)
+        self.root_distance = d
+        self.recovering = rec
+        if rec.any():
+            w = np.where(rec, self.imitation_weight, 1.0)
+            terms = {k: (v if k == "energy" else v * w) for k, v in terms.items()}
+            terms["point"] = np.where(rec, point, 0.0)
+            reward = sum(terms.values())
+        else:
+            terms = {**terms, "point": np.zeros_like(reward)}
+        self.grace = np.where(rec, self.grace_steps, np.maximum(self.grace - 1, 0))
+        terminated = terminated & ~rec & (self.grace == 0)
+        if self.continue_prob > 0 and terminated.any():
+            ids = np.flatnonzero(terminated)
+            go_on = ids[rng.random(len(ids)) < self.continue_prob]
+            terminated[go_on] = False
+            self.grace[go_on] = self.grace_steps
+        if self.hold_end:
+            truncated = np.zeros_like(truncated)
+        return reward, terms, terminated, truncated
+
+    def goal_reference(self, body, ref_next):
+        """The reference the observation shows (`recovery_reference` beyond switch_distance)."""
+        far = root_distance(body, ref_next) > self.switch_distance
+        return recovery_reference(body, ref_next, far, self.clamp_distance) if far.any() else ref_next
+
+    def info(self) -> dict:
+        return {"recovering": self.recovering.copy(), "root_distance": self.root_distance.copy(),
+                "start_kind": self.start_kind.copy()}
+
+
+# ---------------------------------------------------------------------- evaluation
+class RecoveryResult(EvalResult):
+    """Recovery trials (one row each) and the Succ-5s / Succ-10s summary."""
+
+    def table(self) -> str:
+        s = self.summary
+        lines = [f"recovery (success: mean body distance <= {s['threshold']} m for {s['hold_seconds']} s, "
+                 f"reached by 5 s / 10 s; far = {s['far_distance']} m)",
+                 f"  {'start':<12}{'trials':>8}{'Succ-5s':>10}{'Succ-10s':>10}"]
+        for kind in START_KINDS[1:]:
+            if f"trials_{kind}" in s:
+                lines.append(f"  {kind:<12}{s[f'trials_{kind}']:>8}{100 * s[f'succ_5s_{kind}']:>9.1f}%"
+                             f"{100 * s[f'succ_10s_{kind}']:>9.1f}%")
+        lines.append(f"  score {s['score']:.4f}")
+        return "\n".join(lines)
+
+
+class RecoveryProtocol(EvalProtocol):
+    """PHC's recovery evaluation (Succ-5s, Succ-10s), batched, seeded, deterministic policy.
+
+    * For each start kind in fallen, far, fallen+far: `trials` (1000) trials on the standing clip
+      ("stand" unless `motions=` says otherwise), from its first frame; the reference holds the
+      clip's last frame past its end. A far start is exactly `far_distance` (3 m) away. Trials
+      run in waves of `num_envs` worlds, wave k of start kind i reset with seed
+      `seed + 10000 i + k`; the env's early termination is off, so a trial lasts 10 s +
+      `hold_seconds` (330 steps) unless its simulation diverges (then it fails from there).
+    * Per frame, the mean distance over the 24 bodies between the simulated and the reference
+      humanoid (metres, as `metrics.body_distance`). A trial is back at frame t when that
+      distance stays <= `threshold` (0.5 m) over frames t .. t + hold_seconds x 30 (1 s):
+      "stays" = for that whole hold window. Succ-5s: back at a frame <= 150 (5 s); Succ-10s:
+      <= 300 (`recovery_frame`, `recovered_within`).
+    * Summary: per kind, trials_<kind>, succ_5s_<kind>, succ_10s_<kind> (fractions), and `score`
+      (their mean over the kinds and the two horizons), which ranks checkpoints.
+    """
+
+    options = {"trials": 1000, "seed": 0, "threshold": 0.5, "hold_seconds": 1.0, "far_distance": 3.0}
+    train_only_kwargs = ("start", "starts", "continue_prob", "far_distance", "termination_distance",
+                         "max_episode_steps", "hold_end")
+    kinds = ("fallen", "far", "fallen+far")
+
+    def check_options(self, options: dict) -> dict:
+        options = dict(options)
+        if "episodes" in options:  # smpl-envs eval --episodes
+            options["trials"] = options.pop("episodes")
+        options = super().check_options(options)
+        for name in ("trials", "seed"):
+            v = options[name]
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (1 if name == "trials" else 0):
+                raise ValueError(f"{name} must be an integer {'>= 1' if name == 'trials' else '>= 0'}, got {v!r}")
+        for name in ("threshold", "far_distance", "hold_seconds"):
+            v = options[name]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 \
+                    or (v == 0 and name != "hold_seconds"):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        return options
+
+    def record_kwargs(self, train_kwargs: dict) -> dict:
+        # A video shows a get-up: every episode from a fallen state.
+        return {**super().record_kwargs(train_kwargs), "starts": {"fallen": 1.0}}
+
+    def make_env(self, env_id, motions, num_envs, env_kwargs, progress, options):
+        import gymnasium as gym
+
+        forced = {"motions", "starts", "continue_prob", "far_distance", "termination_distance",
+                  "max_episode_steps", "hold_end", *self.forced_kwargs}
+        clash = sorted(set(env_kwargs) & forced)
+        if clash:
+            raise ValueError(f"env_kwargs must not set {clash}: evaluate() chooses them")
+        fd = float(options["far_distance"])
+        return gym.make_vec(env_id, num_envs=min(num_envs, options["trials"]), autoreset_mode="Disabled",
+                            motions="stand" if motions is None else motions, termination_distance=None,
+                            continue_prob=0.0, far_distance=(fd, fd), hold_end=True,
+                            max_episode_steps=self.steps(options), **env_kwargs)
+
+    @staticmethod
+    def steps(options: dict) -> int:
+        return int(round((10.0 + options["hold_seconds"]) * 30))
+
+    def check_env(self, env) -> None:
+        u = getattr(env, "unwrapped", env)
+        _check_disabled_autoreset(u)
+        if getattr(u, "recovery", None) is None:
+            raise ValueError("env must be a recovery env (SMPL/Recovery-v0)")
+        if getattr(u, "max_episode_steps", None) is None:
+            raise ValueError("env must have a time limit (max_episode_steps) for a recovery evaluation")
+
+    def run(self, policy, env, options, progress):
+        u = getattr(env, "unwrapped", env)
+        n, limit = u.num_envs, u.max_episode_steps
+        hold = int(round(options["hold_seconds"] * 30))
+        rows = []
+        bar = tqdm(total=options["trials"] * len(self.kinds), desc="evaluate", unit="trial", disable=not progress)
+        try:
+            for i, kind in enumerate(self.kinds):
+                done = 0
+                for wave in range(-(-options["trials"] // n)):
+                    count = min(n, options["trials"] - done)
+                    dist, broke = _run_wave(policy, env, kind, options["seed"] + 10000 * i + wave, limit)
+                    frames = recovery_frame(dist[:count], options["threshold"], hold)
+                    for k in range(count):
+                        rows.append({"start": kind, "recovery_frame": int(frames[k]),
+                                     "succ_5s": bool(recovered_within(frames[k], 5.0)),
+                                     "succ_10s": bool(recovered_within(frames[k], 10.0)),
+                                     "diverged": bool(broke[k]), "final_distance": float(dist[k, -1])})
+                    done += count
+                    bar.update(count)
+        finally:
+            bar.close()
+        return RecoveryResult(rows, summarize_recovery(rows, options), "recovery")
+
+
+def summarize_recovery(rows: list[dict], options: dict) -> dict:
+    """Per-kind trial counts and success rates, and the mean of the rates (`score`)."""
+    summary = {"threshold": options["threshold"], "hold_seconds": options["hold_seconds"],
+               "far_distance": options["far_distance"]}
+    rates = []
+    for kind in START_KINDS[1:]:
+        mine = [r for r in rows if r["start"] == kind]
+        if mine:
+            summary[f"trials_{kind}"] = len(mine)
+            for h in ("5s", "10s"):
+                rate = float(np.mean([r[f"succ_{h}"] for r in mine]))
+                summary[f"succ_{h}_{kind}"] = rate
+                rates.append(rate)
+    summary["score"] = float(np.mean(rates)) if rates else 0.0
+    return summary
+
+
+def _run_wave(policy, env, kind: str, seed: int, limit: int):
+    """(n, limit + 1) mean body distances of one wave of trials from `kind` starts, and the
+    (n,) mask of diverged worlds (their distance is inf from the divergence on)."""
+    u = getattr(env, "unwrapped", env)
+    n = u.num_envs
+    obs, info = env.reset(seed=seed, options={"recovery_start": kind, "start": "beginning"})
+    obs = np.array(obs, copy=True)
+    dist = np.full((n, limit + 1), np.inf)
+    dist[:, 0] = _distance(info)
+    alive = np.ones(n, bool)
+    broke = np.zeros(n, bool)
+    for t in range(1, limit + 1):
+        obs, _, terminated, truncated, info = env.step(_act(policy, obs))
+        obs = np.array(obs, copy=True)
+        diverged = np.asarray(info["diverged"], bool) | np.asarray(terminated, bool)
+        broke |= alive & diverged
+        alive &= ~diverged
+        dist[alive, t] = _distance(info)[alive]
+        if not alive.any() or np.asarray(truncated, bool)[alive].all():
+            break
+    return dist, broke
+
+
+def _distance(info) -> np.ndarray:
+    d = np.asarray(info["body_pos"], np.float64) - np.asarray(info["ref_body_pos"], np.float64)
+    return np.linalg.norm(d, axis=-1).mean(-1)
+
+
+# ---------------------------------------------------------------------- environment
+class RecoveryVecEnv(ImitationVecEnv):
+    """`gym.make_vec("SMPL/Recovery-v0", num_envs=N, **kwargs)`.
+
+    kwargs: starts (mapping over START_KINDS, sums to 1; default DEFAULT_STARTS), switch_distance
+    (0.5 m), clamp_distance (5 m), point_scale (9), point_clip (1/3 m), recovery_imitation_weight
+    (0.5), grace_steps (90), continue_prob (0.5), far_distance ((2, 5) m), hold_end (True: the
+    reference holds its last frame, no truncation at the clip's end), fallen_cache_size (128),
+    fallen_seed (0); and Imitation's (motions: "stand", reward_weights, reward_scales,
+    energy_weight, termination_distance, action_mode, residual_scale, core kwargs).
+    """
+
+    evaluation = RecoveryProtocol()
+
+    def __init__(self, num_envs: int = 1, *, motions="stand", starts=None, switch_distance=SWITCH_DISTANCE,
+                 clamp_distance=CLAMP_DISTANCE, point_scale=POINT_SCALE, point_clip=POINT_CLIP,
+                 recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT, grace_steps=GRACE_STEPS,
+                 continue_prob=0.5, far_distance=FAR_DISTANCE, hold_end=True, fallen_cache_size=128,
+                 fallen_seed=0, **kwargs):
+        if "recovery" in kwargs:
+            raise ValueError("recovery: Recovery-v0 always recovers; its settings are its own kwargs")
+        recovery = dict(starts=DEFAULT_STARTS if starts is None else starts, switch_distance=switch_distance,
+                        clamp_distance=clamp_distance, point_scale=point_scale, point_clip=point_clip,
+                        recovery_imitation_weight=recovery_imitation_weight, grace_steps=grace_steps,
+                        continue_prob=continue_prob, far_distance=far_distance, hold_end=hold_end,
+                        fallen_cache_size=fallen_cache_size, fallen_seed=fallen_seed)
+        super().__init__(num_envs, motions=motions, recovery=recovery, **kwargs)
+
+    def regenerate_fallen(self, seed: int | None = None) -> None:
+        """Draw a new set of fallen states (from `seed`, or the env's generator)."""
+        self.recovery.fallen.regenerate(int(self.np_random.integers(2**31)) if seed is None else seed)

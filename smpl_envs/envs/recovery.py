@@ -52,11 +52,14 @@ and fallen+far starts on the standing clip (module `RecoveryProtocol` docstring)
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 from tqdm.auto import tqdm
 
+from .. import metrics
 from ..evaluation import EvalProtocol, EvalResult, _act, _check_disabled_autoreset
 from ..features import BodyState
 from .base import check_range
@@ -242,13 +245,21 @@ class RecoveryController:
 
 
 # ---------------------------------------------------------------------- evaluation
+@dataclass
 class RecoveryResult(EvalResult):
-    """Recovery trials (one row each) and the Succ-5s / Succ-10s summary."""
+    """Recovery trials (one row each), the Succ-5s / Succ-10s summary, and the protocol's
+    `settings` (threshold, hold_seconds, far_distance: part of the result, not metrics)."""
+
+    settings: dict = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        return json.dumps({"trials": metrics._plain(self.rows), "summary": metrics._plain(self.summary),
+                           "settings": metrics._plain(self.settings)}, indent=2, allow_nan=False)
 
     def table(self) -> str:
-        s = self.summary
-        lines = [f"recovery (success: mean body distance <= {s['threshold']} m for {s['hold_seconds']} s, "
-                 f"reached by 5 s / 10 s; far = {s['far_distance']} m)",
+        s, o = self.summary, self.settings
+        lines = [f"recovery (success: mean body distance <= {o['threshold']} m for {o['hold_seconds']} s, "
+                 f"reached by 5 s / 10 s; far = {o['far_distance']} m)",
                  f"  {'start':<12}{'trials':>8}{'Succ-5s':>10}{'Succ-10s':>10}"]
         for kind in START_KINDS[1:]:
             if f"trials_{kind}" in s:
@@ -349,13 +360,13 @@ class RecoveryProtocol(EvalProtocol):
                     bar.update(count)
         finally:
             bar.close()
-        return RecoveryResult(rows, summarize_recovery(rows, options), "recovery")
+        settings = {k: options[k] for k in ("threshold", "hold_seconds", "far_distance", "seed")}
+        return RecoveryResult(rows, summarize_recovery(rows), "recovery", settings)
 
 
-def summarize_recovery(rows: list[dict], options: dict) -> dict:
+def summarize_recovery(rows: list[dict]) -> dict:
     """Per-kind trial counts and success rates, and the mean of the rates (`score`)."""
-    summary = {"threshold": options["threshold"], "hold_seconds": options["hold_seconds"],
-               "far_distance": options["far_distance"]}
+    summary = {}
     rates = []
     for kind in START_KINDS[1:]:
         mine = [r for r in rows if r["start"] == kind]

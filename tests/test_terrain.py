@@ -25,8 +25,9 @@ def test_registered_with_both_entry_points_and_a_time_limit():
     assert spec.vector_entry_point == smpl_envs.ENV_IDS[ENV_ID][0] and spec.max_episode_steps == 300
 
 
-def test_env_checker_passes():
-    env = gym.make(ENV_ID, motions="walk", render_mode="rgb_array", render_size=(96, 72), **SMALL)
+@pytest.mark.parametrize("kwargs", [SMALL, dict(terrain="flat")], ids=["tiles", "flat"])
+def test_env_checker_passes(kwargs):
+    env = gym.make(ENV_ID, motions="walk", render_mode="rgb_array", render_size=(96, 72), **kwargs)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*(infinity|too low|too high).*")
         check_env(env.unwrapped)
@@ -132,6 +133,7 @@ def test_flat_gives_the_plain_floor():
     floor = mujoco.mj_name2id(env.model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
     assert env.model.geom_pos[floor, 2] == 0.0
     obs, _ = env.reset(seed=0)
+    assert obs.shape == (2, OBS_DIM)
     root_z = env.sim.bodies.pos[:, 0, 2]
     assert np.allclose(obs[:, 378:], (np.clip(root_z, -3, 3) * 5)[:, None], atol=1e-5)
     env.close()

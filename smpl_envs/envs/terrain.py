@@ -127,7 +127,7 @@ def height_map(terrain, root_pos, heading):
     c, s = heading[:, 0, 0:1], heading[:, 1, 0:1]
     fx, fy = MAP_OFFSETS[:, 0], MAP_OFFSETS[:, 1]
     xy = np.stack([root_pos[:, :1] + c * fx - s * fy, root_pos[:, 1:2] + s * fx + c * fy], -1)
-    ground = 0.0 if terrain is None else terrain.height(xy)
+    ground = np.zeros(xy.shape[:-1]) if terrain is None else terrain.height(xy)
     return np.clip(root_pos[:, 2:3] - ground, -MAP_CLIP, MAP_CLIP) * MAP_SCALE
 
 
@@ -188,6 +188,10 @@ class TerrainVecEnv(GoalVecEnv):
         # The builder's floor would cut through the terrain's pits: lower it under the heightfield.
         floor = spec.geom("floor")
         floor.pos = [0.0, 0.0, low - base]
+        # Software (EGL/OSMesa) renderers draw the heightfield's millions of triangles once more
+        # for the sun's shadow map; without it a frame costs less than half (measured: 0.28 s
+        # against 0.67 s for 4 x 4 tiles). The headlight still shades the slopes and steps.
+        spec.light("sun").castshadow = False
 
     # ------------------------------------------------------------------ terrain reads
     def ground(self, xy, mode: str = "bilinear"):

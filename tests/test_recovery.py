@@ -1,0 +1,324 @@
+"""SMPL/Recovery-v0 and Imitation's recovery option: Gymnasium contracts, fallen and far starts,
+the start mix, the recovery goal form and its switch, the point reward, termination rules,
+the reference held past the clip's end, the recovery metrics on hand-made trajectories, the
+evaluation protocol, and bad input."""
+
+import time
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import smpl_envs
+from smpl_envs.envs.fallen import generate_fallen_states
+from smpl_envs.envs.recovery import (START_KINDS, check_starts, point_reward, recovered_within,
+                                     recovery_frame, recovery_reference)
+from smpl_envs.features import BodyState, heading_rotation, to_heading, tracking_obs
+
+ID = "SMPL/Recovery-v0"
+SMALL = {"fallen_cache_size": 16}  # a small fallen set keeps the tests quick (memoised across envs)
+
+
+def _vec(n=4, **kwargs):
+    return gym.make_vec(ID, num_envs=n, **{**SMALL, **kwargs})
+
+
+def _slices(env):
+    return env.observation_structure
+
+
+def test_registered_and_env_checker():
+    assert ID in smpl_envs.ENV_IDS and gym.spec(ID).max_episode_steps == 300
+    env = gym.make(ID, render_mode="rgb_array", render_size=(96, 72), **SMALL)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*(infinity|too low|too high).*")
+        check_env(env.unwrapped)
+    assert env.observation_space.shape == (934,) and env.action_space.shape == (69,)
+    env.reset(seed=0)
+    assert env.render().shape == (72, 96, 3)
+    env.close()
+
+
+def test_make_vec_is_native_batched_and_seeded():
+    env = _vec(8)
+
+    def rollout(seed):
+        out = [env.reset(seed=seed)[0]]
+        rng = np.random.default_rng(0)
+        for _ in range(20):
+            obs, rew, term, trunc, info = env.step(rng.uniform(-0.3, 0.3, (8, 69)))
+            out += [obs, rew, term, trunc, info["start_kind"]]
+        return out
+
+    assert env.sim.num_worlds == 8 and env.max_episode_steps == 300
+    a, b, c = rollout(5), rollout(5), rollout(6)
+    assert a[0].shape == (8, 934) and a[0].dtype == np.float32
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert not np.array_equal(a[0], c[0])
+    env.close()
+
+
+def test_fallen_states_lie_on_the_ground_and_generate_quickly():
+    t = time.perf_counter()
+    states = generate_fallen_states(64, seed=12345)  # a seed no other test uses: really generated
+    took = time.perf_counter() - t
+    assert took < 20.0, f"64 fallen states took {took:.1f} s"
+    assert states.shape == (64, 76) and np.isfinite(states).all() and not states.flags.writeable
+    assert (states[:, 2] < 0.5).all()  # pelvis low: lying, sitting or kneeling, not standing
+    # Random orientations: the pelvis' up axis points every which way, not only up.
+    assert len(np.unique(states[:, 3:7].round(2), axis=0)) == 64
+    assert generate_fallen_states(64, seed=12345) is states  # memoised
+
+    env = _vec(4)
+    env.reset(seed=0, options={"recovery_start": "fallen"})
+    body = env.sim.bodies
+    assert (body.pos[:, 0, 2] < 0.5).all()
+    np.testing.assert_array_equal(env.sim.qvel, 0.0)  # velocities zeroed
+    # Placed under the reference root (up to the drift of the fall).
+    ref_root = env.unwrapped.motion_lib.body_pos[env.unwrapped.ref.frame, 0]
+    assert (np.linalg.norm(body.pos[:, 0, :2] - ref_root[:, :2], axis=-1) < 1.0).all()
+    # Starting from rest on the floor, nothing explodes.
+    for _ in range(10):
+        _, _, term, _, info = env.step(np.zeros((4, 69)))
+    assert not info["diverged"].any() and np.isfinite(info["root_distance"]).all()
+    env.close()
+
+
+def test_far_starts_are_two_to_five_metres_away_in_the_reference_pose():
+    env = _vec(16)
+    _, info = env.reset(seed=1, options={"recovery_start": "far"})
+    u = env.unwrapped
+    ref_root = u.motion_lib.body_pos[u.ref.frame, 0]
+    sim_root = env.sim.bodies.pos[:, 0]
+    d = np.linalg.norm(sim_root[:, :2] - ref_root[:, :2], axis=-1)
+    assert ((d >= 2.0 - 1e-6) & (d <= 5.0 + 1e-6)).all() and d.std() > 0.3
+    np.testing.assert_allclose(sim_root[:, 2], ref_root[:, 2], atol=1e-6)  # same height: only moved
+    np.testing.assert_allclose(env.sim.bodies.dof_pos, u.motion_lib.dof_pos[u.ref.frame], atol=1e-9)
+    np.testing.assert_allclose(info["root_distance"], d, atol=1e-6)
+    assert info["recovering"].all() and (info["start_kind"] == START_KINDS.index("far")).all()
+    # Fallen and far: lying, and far.
+    env.reset(seed=2, options={"recovery_start": "fallen+far"})
+    body = env.sim.bodies
+    d = np.linalg.norm(body.pos[:, 0, :2] - u.motion_lib.body_pos[u.ref.frame, 0, :2], axis=-1)
+    assert (body.pos[:, 0, 2] < 0.5).all() and (d > 1.0).all()
+    env.close()
+
+
+def test_start_mix_is_honoured():
+    p = {"reference": 0.5, "fallen": 0.25, "far": 0.25}
+    env = _vec(64, starts=p)
+    kinds = np.concatenate([env.reset(seed=s)[1]["start_kind"] for s in range(8)])
+    counts = np.bincount(kinds, minlength=4)
+    expected = 512 * np.array([0.5, 0.25, 0.25, 0.0])
+    assert counts[3] == 0
+    assert (np.abs(counts - expected) < 4 * np.sqrt(512 * 0.25)).all(), counts
+    env.close()
+
+
+def test_goal_switches_to_recovery_form_beyond_half_a_metre_and_back():
+    env = _vec(2, far_distance=(7.0, 8.0))
+    u = env.unwrapped
+    s = _slices(u)
+    obs, info = env.reset(seed=0, options={"recovery_start": ["far", "reference"]})
+    body = env.sim.bodies
+    heading = heading_rotation(body.rot[:, 0])
+    # World 0 is far: its non-root goal columns are the humanoid's own.
+    diff_pos = obs[:, s["goal/diff_pos"]].reshape(2, 24, 3)
+    ref_pos = obs[:, s["goal/ref_pos"]].reshape(2, 24, 3)
+    own = obs[:, s["self/body_pos"]].reshape(2, 23, 3)
+    np.testing.assert_allclose(diff_pos[0, 1:], 0.0, atol=1e-6)
+    np.testing.assert_allclose(ref_pos[0, 1:], own[0], atol=1e-5)
+    for name in ("diff_lin_vel", "diff_ang_vel"):
+        np.testing.assert_allclose(obs[0, s[f"goal/{name}"]].reshape(24, 3)[1:], 0.0, atol=1e-5)
+    ident6 = np.array([1, 0, 0, 1, 0, 0], np.float32)
+    np.testing.assert_allclose(obs[0, s["goal/diff_rot"]].reshape(24, 6)[1:], np.tile(ident6, (23, 1)), atol=1e-5)
+    # ... and its reference root is clamped to 5 m along the true direction.
+    true = u.ref.next().pos[0, 0] - body.pos[0, 0]
+    np.testing.assert_allclose(np.linalg.norm(ref_pos[0, 0]), 5.0, atol=1e-5)
+    expect = to_heading((5.0 * true / np.linalg.norm(true))[None, None], heading[:1])[0, 0]
+    np.testing.assert_allclose(ref_pos[0, 0], expect, atol=1e-5)
+    # World 1 (reference start) sees Imitation's goal, unchanged.
+    np.testing.assert_allclose(obs[1], tracking_obs(body, u.ref.next(), "rotation", heading)[1], atol=1e-5)
+    assert info["recovering"].tolist() == [True, False]
+
+    # Back within reach: put world 0 into the reference state, and the ordinary goal returns.
+    qpos = env.sim.qpos.copy()
+    qpos[0] = qpos[1]
+    u.ref.frame[0] = u.ref.frame[1]
+    env.sim.set_state(np.array([0]), qpos[:1], env.sim.qvel[1:2].copy())
+    obs, _, _, _, info = env.step(np.zeros((2, 69)))
+    body = env.sim.bodies
+    assert not info["recovering"][0]
+    np.testing.assert_allclose(obs[0], tracking_obs(body, u.ref.next(), "rotation", heading_rotation(body.rot[:, 0]))[0],
+                               atol=1e-5)
+    env.close()
+
+
+def test_recovery_reference_is_pure_and_masked():
+    rng = np.random.default_rng(0)
+
+    def state():
+        rot = np.linalg.qr(rng.normal(size=(2, 24, 3, 3)))[0]
+        return BodyState(rng.normal(size=(2, 24, 3)), rot, rng.normal(size=(2, 24, 3)),
+                         rng.normal(size=(2, 24, 3)), np.zeros((2, 69)), np.zeros((2, 69)))
+
+    sim, ref = state(), state()
+    ref.pos[0, 0] = sim.pos[0, 0] + [0.0, 8.0, 0.0]
+    out = recovery_reference(sim, ref, np.array([True, False]), clamp=5.0)
+    np.testing.assert_allclose(out.pos[0, 0], sim.pos[0, 0] + [0.0, 5.0, 0.0])
+    for name in ("pos", "rot", "lin_vel", "ang_vel"):
+        np.testing.assert_array_equal(getattr(out, name)[0, 1:], getattr(sim, name)[0, 1:])
+        np.testing.assert_array_equal(getattr(out, name)[1], getattr(ref, name)[1])
+    np.testing.assert_array_equal(out.rot[0, 0], ref.rot[0, 0])
+    # Closer than the clamp: the root stays where the reference has it.
+    ref.pos[0, 0] = sim.pos[0, 0] + [1.0, 0.0, 0.0]
+    np.testing.assert_allclose(recovery_reference(sim, ref, np.array([True, True])).pos[0, 0], ref.pos[0, 0])
+
+
+def test_point_reward_sign_and_clip():
+    np.testing.assert_allclose(point_reward([1.0, 1.0, 1.0], [0.9, 1.1, 0.0]), [0.9, -0.9, 3.0])
+    # In the env: moving a far humanoid 1 m closer pays 9 x min(1, 1/3) = 3; 1 m away costs 9.
+    env = _vec(2, far_distance=(3.0, 3.0), energy_weight=0.0)
+    env.reset(seed=0, options={"recovery_start": "far"})
+    u = env.unwrapped
+    ref_root = u.motion_lib.body_pos[u.ref.frame, 0]
+    qpos, qvel = env.sim.qpos.copy(), env.sim.qvel.copy()
+    toward = (ref_root - qpos[:, :3]) * [1, 1, 0]
+    toward /= np.linalg.norm(toward, axis=-1, keepdims=True)
+    qpos[:, :3] += toward * np.array([[1.0], [-1.0]])
+    env.sim.set_state(np.arange(2), qpos, qvel)
+    _, reward, _, _, info = env.step(np.zeros((2, 69)))
+    point = info["reward_point"]
+    assert point[0] == pytest.approx(3.0, abs=1e-6) and point[1] == pytest.approx(-9.0, abs=0.3)
+    terms = sum(info[f"reward_{k}"] for k in ("pos", "rot", "lin_vel", "ang_vel", "energy", "point"))
+    np.testing.assert_allclose(reward, terms, atol=1e-9)
+    assert info["recovering"].all()
+    env.close()
+
+
+def test_imitation_with_recovery_does_not_terminate_when_far():
+    def shifted_step(env):
+        env.reset(seed=0)
+        qpos = env.sim.qpos.copy()
+        qpos[:, 0] += 3.0
+        env.sim.set_state(np.arange(2), qpos, env.sim.qvel.copy())
+        return env.step(env.unwrapped.reference_action())
+
+    plain = gym.make_vec("SMPL/Imitation-v0", num_envs=2, motions="walk")
+    assert shifted_step(plain)[2].all()  # without recovery: 3 m away ends the episode
+    plain.close()
+    env = gym.make_vec("SMPL/Imitation-v0", num_envs=2, motions="walk", recovery=True)
+    _, _, term, _, info = shifted_step(env)
+    assert not term.any() and info["recovering"].all()
+    for _ in range(30):
+        _, _, term, trunc, info = env.step(env.unwrapped.reference_action())
+        assert not term.any()
+    assert info["recovering"].all()
+    # The default Imitation env keeps its info (no recovery entries).
+    assert "recovering" not in gym.make_vec("SMPL/Imitation-v0", num_envs=1).reset(seed=0)[1]
+    env.close()
+
+
+def test_termination_continues_as_recovery_with_grace():
+    def first_termination(continue_prob):
+        env = _vec(4, starts={"reference": 1.0}, termination_distance=0.05, continue_prob=continue_prob,
+                   grace_steps=90)
+        env.reset(seed=0)
+        for t in range(40):
+            _, _, term, _, info = env.step(np.zeros((4, 69)))  # absolute zero: the pose drifts away
+            if term.any():
+                env.close()
+                return t
+        grace = env.unwrapped.recovery.grace.copy()
+        env.close()
+        return grace
+
+    assert isinstance(first_termination(0.0), int)
+    grace = first_termination(1.0)
+    assert not isinstance(grace, int) and (grace > 0).any()  # continued, with a grace running
+
+
+def test_reference_is_held_past_the_clip_end():
+    env = gym.make_vec(ID, num_envs=1, starts={"reference": 1.0}, action_mode="residual", max_episode_steps=None,
+                       **SMALL)
+    u = env.unwrapped
+    env.reset(seed=0, options={"start": "beginning"})
+    end = u.ref.end_frame[0]
+    for _ in range(u.motion_lib.lengths[0] + 5):
+        _, _, term, trunc, _ = env.step(np.zeros((1, 69)))
+        assert not trunc[0]
+    assert u.ref.frame[0] == end
+    env.close()
+
+
+def test_recovery_metrics_on_hand_made_trajectories():
+    far, near = 1.0, 0.2
+    # Back at frame 3 and stays: recovery frame 3.
+    d = np.array([far, far, far] + [near] * 10)
+    assert recovery_frame(d, 0.5, hold_frames=4) == 3
+    # Back at 2, out again at 4 (a dip that does not stay), back for good at 6.
+    d = np.array([far, far, near, near, far, far] + [near] * 8)
+    assert recovery_frame(d, 0.5, hold_frames=3) == 6
+    assert recovery_frame(d, 0.5, hold_frames=1) == 2  # a short hold accepts the dip
+    # Exactly the threshold counts as within; the hold window must fit in the trial.
+    assert recovery_frame(np.array([far, 0.5, 0.5, 0.5]), 0.5, hold_frames=2) == 1
+    assert recovery_frame(np.array([far, far, near, near]), 0.5, hold_frames=2) == -1
+    assert recovery_frame(np.array([near, np.nan, near, near]), 0.5, hold_frames=1) == 2
+    assert recovery_frame(np.full(5, far), 0.5, hold_frames=0) == -1
+    # Batched over trials.
+    batch = np.stack([np.r_[np.full(150, far), np.full(180, near)], np.r_[np.full(151, far), np.full(179, near)],
+                      np.r_[np.full(301, far), np.full(29, near)], np.full(330, near)])
+    frames = recovery_frame(batch, 0.5, hold_frames=30)
+    assert frames.tolist() == [150, 151, -1, 0]
+    assert recovered_within(frames, 5.0).tolist() == [True, False, False, True]
+    assert recovered_within(frames, 10.0).tolist() == [True, True, False, True]
+
+
+def test_evaluation_protocol_runs_and_reports_the_table():
+    zero = lambda obs: np.zeros((len(obs), 69), np.float32)  # noqa: E731
+    result = smpl_envs.evaluate(zero, ID, num_envs=2, progress=False, trials=2, hold_seconds=0.2,
+                                env_kwargs={"action_mode": "residual", **SMALL})
+    s = result.summary
+    for kind in ("fallen", "far", "fallen+far"):
+        assert s[f"trials_{kind}"] == 2
+        assert s[f"succ_10s_{kind}"] >= s[f"succ_5s_{kind}"]
+    # The PD controllers alone do not walk 3 m: far trials fail.
+    assert s["succ_10s_far"] == 0.0 and len(result.rows) == 6
+    table = result.table()
+    assert "Succ-5s" in table and "fallen+far" in table
+    assert '"settings"' in result.to_json()
+    with pytest.raises(ValueError, match="trials"):
+        smpl_envs.evaluate(zero, ID, trials=0)
+    with pytest.raises(ValueError, match="starts"):
+        smpl_envs.evaluate(zero, ID, trials=1, env_kwargs={"starts": {"fallen": 1.0}})
+
+
+def test_bad_kwargs_raise_clear_errors():
+    with pytest.raises(ValueError, match="starts"):
+        check_starts({"reference": 0.5, "fallen": 0.4})
+    with pytest.raises(ValueError, match="starts"):
+        check_starts({"reference": 0.5, "flying": 0.5})
+    with pytest.raises(ValueError, match="starts"):
+        check_starts({"reference": 1.5, "fallen": -0.5})
+    with pytest.raises(ValueError, match="starts"):
+        gym.make_vec(ID, num_envs=1, starts={"fallen": 0.9})
+    with pytest.raises(ValueError, match="starts"):
+        gym.make_vec(ID, num_envs=1, starts="fallen")
+    with pytest.raises(ValueError, match="continue_prob"):
+        gym.make_vec(ID, num_envs=1, continue_prob=1.5)
+    with pytest.raises(ValueError, match="far_distance"):
+        gym.make_vec(ID, num_envs=1, far_distance=(5.0, 2.0))
+    with pytest.raises(ValueError, match="switch_distance"):
+        gym.make_vec(ID, num_envs=1, switch_distance=0.0)
+    with pytest.raises(ValueError, match="fallen_cache_size"):
+        gym.make_vec(ID, num_envs=1, fallen_cache_size=0)
+    with pytest.raises(ValueError, match="recovery"):
+        gym.make_vec("SMPL/Imitation-v0", num_envs=1, recovery="yes")
+    env = _vec(2)
+    with pytest.raises(ValueError, match="recovery_start"):
+        env.reset(seed=0, options={"recovery_start": "flying"})
+    env.close()
+    with pytest.raises(ValueError, match="recovery_start"):  # only recovery envs take the option
+        gym.make_vec("SMPL/Imitation-v0", num_envs=1).reset(options={"recovery_start": "far"})

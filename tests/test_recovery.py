@@ -322,3 +322,14 @@ def test_bad_kwargs_raise_clear_errors():
     env.close()
     with pytest.raises(ValueError, match="recovery_start"):  # only recovery envs take the option
         gym.make_vec("SMPL/Imitation-v0", num_envs=1).reset(options={"recovery_start": "far"})
+
+
+def test_baselines_example_runs():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).parents[1] / "examples" / "recovery_baselines.py"
+    out = subprocess.run([sys.executable, str(script), "--trials", "1", "--num-envs", "1", "--fallen-cache-size", "16"],
+                         capture_output=True, text=True, timeout=300, check=True).stdout
+    assert "zero, residual" in out and "fallen+far 10s" in out and out.count("%") == 18

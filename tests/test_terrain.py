@@ -274,3 +274,18 @@ def test_episode_evaluation_runs_the_protocol():
 def test_bad_kwargs_name_themselves(kwargs, match):
     with pytest.raises(ValueError, match=match):
         gym.make_vec(ENV_ID, num_envs=1, **kwargs)
+
+
+def test_terrain_types_example_writes_its_picture(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import imageio.v3 as iio
+
+    script = Path(__file__).resolve().parents[1] / "examples" / "terrain_types.py"
+    out = subprocess.run([sys.executable, str(script), "--size", "80", "60", "--out", str(tmp_path / "t.png")],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    image = iio.imread(tmp_path / "t.png")
+    assert image.shape == (120, 320, 3) and image.std() > 5  # 8 panels, 4 x 2

@@ -182,8 +182,10 @@ class TerrainVecEnv(GoalVecEnv):
         spec.add_hfield(name="terrain", nrow=h.shape[0], ncol=h.shape[1],
                         size=[(x1 - x0) / 2, (y1 - y0) / 2, max(span, 1e-3), base],
                         userdata=((h - low) / max(span, 1e-3)).ravel().tolist())
+        # A plain material: the light's shading, not a texture, shows the slopes and steps.
+        spec.add_material(name="terrain", rgba=[0.62, 0.58, 0.5, 1.0], specular=0.1, shininess=0.1)
         spec.worldbody.add_geom(name="terrain", type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="terrain",
-                                pos=[(x0 + x1) / 2, (y0 + y1) / 2, low], material="floor",
+                                pos=[(x0 + x1) / 2, (y0 + y1) / 2, low], material="terrain",
                                 friction=FRICTION, condim=3)
         # The builder's floor would cut through the terrain's pits: lower it under the heightfield.
         floor = spec.geom("floor")

@@ -83,6 +83,11 @@ def test_fallen_states_lie_on_the_ground_and_generate_quickly():
     for _ in range(10):
         _, _, term, _, info = env.step(np.zeros((4, 69)))
     assert not info["diverged"].any() and np.isfinite(info["root_distance"]).all()
+    # Regenerated on demand: another set.
+    before = env.unwrapped.recovery.fallen.states
+    env.unwrapped.regenerate_fallen(seed=7)
+    after = env.unwrapped.recovery.fallen.states
+    assert after.shape == before.shape and not np.allclose(after, before)
     env.close()
 
 
@@ -256,24 +261,24 @@ def test_reference_is_held_past_the_clip_end():
 def test_recovery_metrics_on_hand_made_trajectories():
     far, near = 1.0, 0.2
     # Back at frame 3 and stays: recovery frame 3.
-    d = np.array([far, far, far] + [near] * 10)
-    assert recovery_frame(d, 0.5, hold_frames=4) == 3
-    # Back at 2, out again at 4 (a dip that does not stay), back for good at 6.
-    d = np.array([far, far, near, near, far, far] + [near] * 8)
-    assert recovery_frame(d, 0.5, hold_frames=3) == 6
-    assert recovery_frame(d, 0.5, hold_frames=1) == 2  # a short hold accepts the dip
-    # Exactly the threshold counts as within; the hold window must fit in the trial.
-    assert recovery_frame(np.array([far, 0.5, 0.5, 0.5]), 0.5, hold_frames=2) == 1
-    assert recovery_frame(np.array([far, far, near, near]), 0.5, hold_frames=2) == -1
-    assert recovery_frame(np.array([near, np.nan, near, near]), 0.5, hold_frames=1) == 2
-    assert recovery_frame(np.full(5, far), 0.5, hold_frames=0) == -1
-    # Batched over trials.
+    assert recovery_frame(np.array([far, far, far] + [near] * 10), 0.5) == 3
+    # Back at 2, out again at 4 (a dip in reach that does not stay), back for good at 6.
+    assert recovery_frame(np.array([far, far, near, near, far, far] + [near] * 8), 0.5) == 6
+    # Within from the start: 0. Exactly the threshold counts as within.
+    assert recovery_frame(np.full(5, near), 0.5) == 0
+    assert recovery_frame(np.array([far, 0.5, 0.5, 0.5]), 0.5) == 1
+    # Out at the last frame (got up, fell again), or never back: -1. NaN counts as out.
+    assert recovery_frame(np.array([far, near, near, far]), 0.5) == -1
+    assert recovery_frame(np.full(5, far), 0.5) == -1
+    assert recovery_frame(np.array([far, near, np.nan, near, near]), 0.5) == 3
+    # Batched over trials of 330 frames (10 s + 1 s): back by 5 s exactly, one frame late, late.
     batch = np.stack([np.r_[np.full(150, far), np.full(180, near)], np.r_[np.full(151, far), np.full(179, near)],
                       np.r_[np.full(301, far), np.full(29, near)], np.full(330, near)])
-    frames = recovery_frame(batch, 0.5, hold_frames=30)
-    assert frames.tolist() == [150, 151, -1, 0]
+    frames = recovery_frame(batch, 0.5)
+    assert frames.tolist() == [150, 151, 301, 0]
     assert recovered_within(frames, 5.0).tolist() == [True, False, False, True]
     assert recovered_within(frames, 10.0).tolist() == [True, True, False, True]
+    assert not recovered_within(np.array([-1]), 10.0)[0]
 
 
 def test_evaluation_protocol_runs_and_reports_the_table():
@@ -333,3 +338,21 @@ def test_baselines_example_runs():
     out = subprocess.run([sys.executable, str(script), "--trials", "1", "--num-envs", "1", "--fallen-cache-size", "16"],
                          capture_output=True, text=True, timeout=300, check=True).stdout
     assert "zero, residual" in out and "fallen+far 10s" in out and out.count("%") == 18
+
+
+def test_protocol_measures_from_the_trial_start_to_its_end():
+    # End to end on a case with a known answer: from the reference state of the standing clip,
+    # the PD controllers alone (zero residual) stand for a moment, then fall (measured: within
+    # 2 s). The trial starts within reach but does not stay: it is never back.
+    from smpl_envs.envs.recovery import RecoveryVecEnv, _run_wave
+
+    proto = RecoveryVecEnv.evaluation
+    options = proto.check_options({"trials": 2, "hold_seconds": 0.2})
+    env = proto.make_env(ID, None, 2, {"action_mode": "residual", **SMALL}, False, options)
+    assert env.max_episode_steps == 306
+    dist, broke = _run_wave(lambda obs: np.zeros((len(obs), 69)), env, "reference", 0, env.max_episode_steps)
+    assert dist.shape == (2, 307) and not broke.any() and np.isfinite(dist).all()
+    assert (dist[:, :10] < 0.2).all() and (dist[:, -1] > 0.5).all()
+    assert recovery_frame(dist, 0.5).tolist() == [-1, -1]
+    assert recovery_frame(dist[:, :10], 0.5).tolist() == [0, 0]
+    env.close()

@@ -123,20 +123,16 @@ def recovery_reference(sim: BodyState, ref: BodyState, far: np.ndarray, clamp: f
     return BodyState(dof_pos=ref.dof_pos, dof_vel=ref.dof_vel, **out)
 
 
-def recovery_frame(dist, threshold: float = 0.5, hold_frames: int = 30) -> np.ndarray:
-    """First frame t at which a trial is back and stays: dist[t .. t + hold_frames] all <=
-    threshold (a window that must lie inside the trial); -1 if there is none. `dist` (..., T)
-    mean body distances per frame (non-finite counts as beyond); returns (...) ints."""
+def recovery_frame(dist, threshold: float = 0.5) -> np.ndarray:
+    """The frame from which a trial is back for good: the first t with dist[t:] all <= threshold
+    (the frame after the last one beyond it; 0 if none is), -1 if the trial's last frame is
+    beyond. `dist` (..., T) mean body distances per frame (non-finite counts as beyond);
+    returns (...) ints."""
     dist = np.asarray(dist, float)
     bad = ~(dist <= threshold)
-    h = int(hold_frames)
     t = dist.shape[-1]
-    if t < h + 1:
-        return np.full(dist.shape[:-1], -1, np.int64)
-    cs = np.concatenate([np.zeros((*dist.shape[:-1], 1)), np.cumsum(bad, axis=-1)], axis=-1)
-    window_bad = cs[..., h + 1:] - cs[..., :t - h]  # bad frames in [s, s + h] for s = 0 .. T-h-1
-    ok = window_bad == 0
-    return np.where(ok.any(-1), ok.argmax(-1), -1).astype(np.int64)
+    last_bad = np.where(bad.any(-1), t - 1 - bad[..., ::-1].argmax(-1), -1)
+    return np.where(last_bad == t - 1, -1, last_bad + 1).astype(np.int64)
 
 
 def recovered_within(frames, seconds: float, fps: float = 30.0) -> np.ndarray:
@@ -258,8 +254,8 @@ class RecoveryResult(EvalResult):
 
     def table(self) -> str:
         s, o = self.summary, self.settings
-        lines = [f"recovery (success: mean body distance <= {o['threshold']} m for {o['hold_seconds']} s, "
-                 f"reached by 5 s / 10 s; far = {o['far_distance']} m)",
+        lines = [f"recovery (success: back within {o['threshold']} m mean body distance by 5 s / 10 s and "
+                 f"staying to the trial's end, {10 + o['hold_seconds']:g} s; far = {o['far_distance']} m)",
                  f"  {'start':<12}{'trials':>8}{'Succ-5s':>10}{'Succ-10s':>10}"]
         for kind in START_KINDS[1:]:
             if f"trials_{kind}" in s:
@@ -280,9 +276,10 @@ class RecoveryProtocol(EvalProtocol):
       `hold_seconds` (330 steps) unless its simulation diverges (then it fails from there).
     * Per frame, the mean distance over the 24 bodies between the simulated and the reference
       humanoid (metres, as `metrics.body_distance`). A trial is back at frame t when that
-      distance stays <= `threshold` (0.5 m) over frames t .. t + hold_seconds x 30 (1 s):
-      "stays" = for that whole hold window. Succ-5s: back at a frame <= 150 (5 s); Succ-10s:
-      <= 300 (`recovery_frame`, `recovered_within`).
+      distance is <= `threshold` (0.5 m) at t and at every later frame of the trial: "stays" =
+      to the trial's end, so a humanoid that gets up and falls again is not back, and a trial
+      back by 10 s has held it for at least `hold_seconds` (1 s). Succ-5s: back at a frame
+      <= 150 (5 s); Succ-10s: <= 300 (`recovery_frame`, `recovered_within`).
     * Summary: per kind, trials_<kind>, succ_5s_<kind>, succ_10s_<kind> (fractions), and `score`
       (their mean over the kinds and the two horizons), which ranks checkpoints.
     """
@@ -341,7 +338,6 @@ class RecoveryProtocol(EvalProtocol):
     def run(self, policy, env, options, progress):
         u = getattr(env, "unwrapped", env)
         n, limit = u.num_envs, u.max_episode_steps
-        hold = int(round(options["hold_seconds"] * 30))
         rows = []
         bar = tqdm(total=options["trials"] * len(self.kinds), desc="evaluate", unit="trial", disable=not progress)
         try:
@@ -350,7 +346,7 @@ class RecoveryProtocol(EvalProtocol):
                 for wave in range(-(-options["trials"] // n)):
                     count = min(n, options["trials"] - done)
                     dist, broke = _run_wave(policy, env, kind, options["seed"] + 10000 * i + wave, limit)
-                    frames = recovery_frame(dist[:count], options["threshold"], hold)
+                    frames = recovery_frame(dist[:count], options["threshold"])
                     for k in range(count):
                         rows.append({"start": kind, "recovery_frame": int(frames[k]),
                                      "succ_5s": bool(recovered_within(frames[k], 5.0)),

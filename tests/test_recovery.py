@@ -317,6 +317,12 @@ def test_bad_kwargs_raise_clear_errors():
         gym.make_vec(ID, num_envs=1, far_distance=(5.0, 2.0))
     with pytest.raises(ValueError, match="switch_distance"):
         gym.make_vec(ID, num_envs=1, switch_distance=0.0)
+    with pytest.raises(ValueError, match="clamp_distance"):
+        gym.make_vec(ID, num_envs=1, clamp_distance="far")
+    with pytest.raises(ValueError, match="point_scale"):
+        gym.make_vec(ID, num_envs=1, point_scale=float("nan"))
+    with pytest.raises(ValueError, match="grace_steps"):
+        gym.make_vec(ID, num_envs=1, grace_steps=1.5)
     with pytest.raises(ValueError, match="fallen_cache_size"):
         gym.make_vec(ID, num_envs=1, fallen_cache_size=0)
     with pytest.raises(ValueError, match="recovery"):

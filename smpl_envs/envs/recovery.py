@@ -141,6 +141,17 @@ def recovered_within(frames, seconds: float, fps: float = 30.0) -> np.ndarray:
     return (frames >= 0) & (frames <= seconds * fps + 1e-9)
 
 
+def _number(name: str, value, positive: bool = False) -> float:
+    """A finite number >= 0 (> 0 if `positive`), or a ValueError naming the kwarg."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if isinstance(value, bool) or not np.isfinite(v) or v < 0 or (positive and v == 0):
+        raise ValueError(f"{name} must be a {'positive' if positive else 'non-negative'} finite number, got {value!r}")
+    return v
+
+
 # ---------------------------------------------------------------------- per-world recovery state
 class RecoveryController:
     """The recovery state and rules of an imitation env's worlds (module docstring); the env
@@ -151,22 +162,18 @@ class RecoveryController:
                  grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
                  fallen_cache_size=128, fallen_seed=0):
         self.p = check_starts({"reference": 1.0} if starts is None else starts)
-        for name, v in (("switch_distance", switch_distance), ("clamp_distance", clamp_distance),
-                        ("point_clip", point_clip)):
-            if isinstance(v, bool) or not np.isfinite(float(v)) or not float(v) > 0:
-                raise ValueError(f"{name} must be a positive distance in metres, got {v!r}")
-        for name, v in (("point_scale", point_scale), ("recovery_imitation_weight", recovery_imitation_weight)):
-            if isinstance(v, bool) or not np.isfinite(float(v)) or float(v) < 0:
-                raise ValueError(f"{name} must be a non-negative number, got {v!r}")
+        self.switch_distance = _number("switch_distance", switch_distance, positive=True)
+        self.clamp_distance = _number("clamp_distance", clamp_distance, positive=True)
+        self.point_clip = _number("point_clip", point_clip, positive=True)
+        self.point_scale = _number("point_scale", point_scale)
+        self.imitation_weight = _number("recovery_imitation_weight", recovery_imitation_weight)
+        self.continue_prob = _number("continue_prob", continue_prob)
+        if self.continue_prob > 1.0:
+            raise ValueError(f"continue_prob must be a probability in [0, 1], got {continue_prob!r}")
         if isinstance(grace_steps, bool) or not isinstance(grace_steps, (int, np.integer)) or grace_steps < 0:
             raise ValueError(f"grace_steps must be a non-negative integer, got {grace_steps!r}")
-        if isinstance(continue_prob, bool) or not 0.0 <= float(continue_prob) <= 1.0:
-            raise ValueError(f"continue_prob must be a probability in [0, 1], got {continue_prob!r}")
+        self.grace_steps = int(grace_steps)
         self.far_distance = check_range("far_distance", far_distance, 0.0)
-        self.switch_distance, self.clamp_distance = float(switch_distance), float(clamp_distance)
-        self.point_scale, self.point_clip = float(point_scale), float(point_clip)
-        self.imitation_weight = float(recovery_imitation_weight)
-        self.grace_steps, self.continue_prob = int(grace_steps), float(continue_prob)
         self.hold_end = bool(hold_end)
         self.fallen = FallenStates(fallen_cache_size, fallen_seed)
         self.hum = env.humanoid

@@ -54,6 +54,11 @@ are over the successful clips (how PHC reports them; NaN if none succeeded), ``a
 clips (failed clips up to their failure frame). The per-clip-mean view (every clip weighs the same
 whatever its length) is kept under ``clip_mean_*`` (successful clips) and ``clip_mean_all_*``.
 Clip values that are NaN (too short a clip) are skipped.
+
+Recovery       (PHC's fail-state recovery, `SMPL/Recovery-v0`) per trial from its body distances
+               d_t: the trial is back from the first frame t after which d stays <= threshold to
+               the trial's end (`recovery_frame`; -1 if its last frame is beyond); Succ-5s /
+               Succ-10s: back at a frame <= 150 / 300 (`recovered_within`).
 """
 
 from __future__ import annotations
@@ -316,3 +321,22 @@ def to_json(rows: list[dict], summary: dict | None = None) -> str:
         summary = summarize(rows)
     # allow_nan=False: any non-finite value that slipped through is a bug, not invalid JSON output
     return json.dumps({"clips": _plain(rows), "summary": _plain(summary)}, indent=2, allow_nan=False)
+
+
+# ---------------------------------------------------------------------- fail-state recovery (PHC)
+def recovery_frame(dist, threshold: float = 0.5) -> np.ndarray:
+    """The frame from which a trial is back for good: the first t with dist[t:] all <= threshold
+    (the frame after the last one beyond it; 0 if none is), -1 if the trial's last frame is
+    beyond. `dist` (..., T) mean body distances per frame (non-finite counts as beyond);
+    returns (...) ints."""
+    dist = np.asarray(dist, float)
+    bad = ~(dist <= threshold)
+    t = dist.shape[-1]
+    last_bad = np.where(bad.any(-1), t - 1 - bad[..., ::-1].argmax(-1), -1)
+    return np.where(last_bad == t - 1, -1, last_bad + 1).astype(np.int64)
+
+
+def recovered_within(frames, seconds: float, fps: float = 30.0) -> np.ndarray:
+    """Succ-<seconds>s per trial: back (recovery_frame >= 0) at a frame <= seconds x fps."""
+    frames = np.asarray(frames)
+    return (frames >= 0) & (frames <= seconds * fps + 1e-9)

@@ -60,6 +60,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .. import metrics
+from ..metrics import recovered_within, recovery_frame  # noqa: F401 (also this module's API)
 from ..evaluation import EvalProtocol, EvalResult, _act, _check_disabled_autoreset
 from ..features import BodyState
 from .base import check_range
@@ -121,24 +122,6 @@ def recovery_reference(sim: BodyState, ref: BodyState, far: np.ndarray, clamp: f
         out[name] = a
     out["pos"][:, 0] = np.where(far[:, None], root, ref.pos[:, 0])
     return BodyState(dof_pos=ref.dof_pos, dof_vel=ref.dof_vel, **out)
-
-
-def recovery_frame(dist, threshold: float = 0.5) -> np.ndarray:
-    """The frame from which a trial is back for good: the first t with dist[t:] all <= threshold
-    (the frame after the last one beyond it; 0 if none is), -1 if the trial's last frame is
-    beyond. `dist` (..., T) mean body distances per frame (non-finite counts as beyond);
-    returns (...) ints."""
-    dist = np.asarray(dist, float)
-    bad = ~(dist <= threshold)
-    t = dist.shape[-1]
-    last_bad = np.where(bad.any(-1), t - 1 - bad[..., ::-1].argmax(-1), -1)
-    return np.where(last_bad == t - 1, -1, last_bad + 1).astype(np.int64)
-
-
-def recovered_within(frames, seconds: float, fps: float = 30.0) -> np.ndarray:
-    """Succ-<seconds>s per trial: back (recovery_frame >= 0) at a frame <= seconds x fps."""
-    frames = np.asarray(frames)
-    return (frames >= 0) & (frames <= seconds * fps + 1e-9)
 
 
 def _number(name: str, value, positive: bool = False) -> float:

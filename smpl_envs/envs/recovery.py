@@ -246,11 +246,12 @@ class RecoveryResult(EvalResult):
         s, o = self.summary, self.settings
         lines = [f"recovery (success: back within {o['threshold']} m mean body distance by 5 s / 10 s and "
                  f"staying to the trial's end, {10 + o['hold_seconds']:g} s; far = {o['far_distance']} m)",
-                 f"  {'start':<12}{'trials':>8}{'Succ-5s':>10}{'Succ-10s':>10}"]
+                 f"  {'start':<12}{'trials':>8}{'Succ-5s':>10}{'Succ-10s':>10}{'final m':>10}"]
         for kind in START_KINDS[1:]:
             if f"trials_{kind}" in s:
                 lines.append(f"  {kind:<12}{s[f'trials_{kind}']:>8}{100 * s[f'succ_5s_{kind}']:>9.1f}%"
-                             f"{100 * s[f'succ_10s_{kind}']:>9.1f}%")
+                             f"{100 * s[f'succ_10s_{kind}']:>9.1f}%{s[f'final_distance_{kind}']:>10.2f}")
+        lines.append("  final m: median mean body distance at the trial's end (progress short of success)")
         lines.append(f"  score {s['score']:.4f}")
         return "\n".join(lines)
 
@@ -270,7 +271,9 @@ class RecoveryProtocol(EvalProtocol):
       to the trial's end, so a humanoid that gets up and falls again is not back, and a trial
       back by 10 s has held it for at least `hold_seconds` (1 s). Succ-5s: back at a frame
       <= 150 (5 s); Succ-10s: <= 300 (`recovery_frame`, `recovered_within`).
-    * Summary: per kind, trials_<kind>, succ_5s_<kind>, succ_10s_<kind> (fractions), and `score`
+    * Summary: per kind, trials_<kind>, succ_5s_<kind>, succ_10s_<kind> (fractions),
+      final_distance_<kind> (the median mean body distance at the trial's end, m: how far short
+      of success a policy stays), and `score`
       (their mean over the kinds and the two horizons), which ranks checkpoints.
     """
 
@@ -362,6 +365,8 @@ def summarize_recovery(rows: list[dict]) -> dict:
                 rate = float(np.mean([r[f"succ_{h}"] for r in mine]))
                 summary[f"succ_{h}_{kind}"] = rate
                 rates.append(rate)
+            # Median: a diverged trial's distance is inf; it counts as far, not as a NaN mean.
+            summary[f"final_distance_{kind}"] = float(np.median([r["final_distance"] for r in mine]))
     summary["score"] = float(np.mean(rates)) if rates else 0.0
     return summary
 

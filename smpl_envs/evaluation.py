@@ -298,50 +298,52 @@ def _act(policy, obs):
 
 
 # ---------------------------------------------------------------------------------------- clips
-def _run_clips(policy: Callable, env, threshold: float, progress: bool) -> list[dict]:
-    u = getattr(env, "unwrapped", env)
-    lib = u.motion_lib
-    n, m = u.num_envs, lib.num_motions
+def _clip_queue(policy: Callable, env, num_clips: int, keys: Callable[[dict], tuple[str, ...]],
+                fails: Callable[[list, np.ndarray], np.ndarray], finish: Callable[[int, list, bool], dict],
+                progress: bool) -> list[dict]:
+    """Every clip once, from its first frame, batched: each world takes the next clip of the queue
+    whenever its own ends, so the result does not depend on the number of worlds.
+
+    keys(info): the `info` entries recorded every frame (float64, one array per key);
+    fails(arrays, lengths): (k,) bool, which of the recorded worlds fail their clip at this frame
+    (`lengths`: frames recorded so far, this one included);
+    finish(clip, frames, broke): the clip's row from its frames (per frame, one array per key) and
+    whether the env ended it early (a divergence: the env's own termination is off)."""
+    n = getattr(env, "unwrapped", env).num_envs
     clip = np.full(n, -1, np.int64)            # clip each world imitates; -1 = idle
-    sim_traj = [[] for _ in range(n)]          # per world: (24, 3) frames of its current clip
-    ref_traj = [[] for _ in range(n)]
-    broke = np.zeros(n, bool)                  # current clip ended by the env (divergence)
-    rows: list[dict | None] = [None] * m
+    frames: list[list] = [[] for _ in range(n)]
+    broke = np.zeros(n, bool)
+    rows: list[dict | None] = [None] * num_clips
 
     def record(worlds, info, terminated=None, truncated=None):
         """Append the current frame of `worlds`; return those whose clip ends at this frame."""
-        sim = np.asarray(info["body_pos"])[worlds]
-        ref = np.asarray(info["ref_body_pos"])[worlds]
+        arrays = [np.asarray(info[k], np.float64)[worlds] for k in keys(info)]
         for k, w in enumerate(worlds):
-            sim_traj[w].append(sim[k].copy())
-            ref_traj[w].append(ref[k].copy())
-        # Same formula as metrics.body_distance, in float64 like clip_metrics, so the stop
-        # decision here and the fail frame it reports always agree.
-        stop = np.linalg.norm(sim.astype(np.float64) - ref.astype(np.float64), axis=-1).mean(axis=1) > threshold
+            frames[w].append([a[k] for a in arrays])
+        stop = fails(arrays, np.array([len(frames[w]) for w in worlds], np.int64))
         if terminated is not None:
-            # Termination is off, so the env only ends a clip early when its simulation diverged.
             broke[worlds] = terminated[worlds]
             stop |= terminated[worlds] | truncated[worlds]
         return worlds[stop]
 
     # Every world starts at once (idle ones on any clip: their steps are ignored).
-    first = min(n, m)
-    obs, info = env.reset(seed=0, options={"motion_ids": np.arange(n) % m, "start": "beginning"})
+    first = min(n, num_clips)
+    obs, info = env.reset(seed=0, options={"motion_ids": np.arange(n) % num_clips, "start": "beginning"})
     obs = np.array(obs, copy=True)
     clip[:first] = np.arange(first)
     next_clip = first
     done = record(np.arange(first), info)
-    bar = tqdm(total=m, desc="evaluate", unit="clip", disable=not progress)
+    bar = tqdm(total=num_clips, desc="evaluate", unit="clip", disable=not progress)
     try:
         while True:
             # Finish ended clips and refill those worlds; a clip may end on its initial frame,
             # hence the loop.
             while len(done):
                 for w in done:
-                    rows[clip[w]] = _finish_clip(lib, clip[w], sim_traj[w], ref_traj[w], broke[w], threshold)
-                    sim_traj[w], ref_traj[w], clip[w], broke[w] = [], [], -1, False
+                    rows[clip[w]] = finish(int(clip[w]), frames[w], bool(broke[w]))
+                    frames[w], clip[w], broke[w] = [], -1, False
                     bar.update(1)
-                take = done[:m - next_clip]
+                take = done[:num_clips - next_clip]
                 if not len(take):
                     break
                 ids = np.arange(next_clip, next_clip + len(take))
@@ -361,6 +363,16 @@ def _run_clips(policy: Callable, env, threshold: float, progress: bool) -> list[
     finally:
         bar.close()
     return rows
+
+
+def _run_clips(policy: Callable, env, threshold: float, progress: bool) -> list[dict]:
+    lib = getattr(env, "unwrapped", env).motion_lib
+    return _clip_queue(
+        policy, env, lib.num_motions, lambda info: ("body_pos", "ref_body_pos"),
+        # Same formula as metrics.body_distance, in float64 like clip_metrics, so the stop
+        # decision here and the fail frame it reports always agree.
+        lambda a, _: np.linalg.norm(a[0] - a[1], axis=-1).mean(axis=1) > threshold,
+        lambda c, frames, broke: _finish_clip(lib, c, *zip(*frames), broke, threshold), progress)
 
 
 def _finish_clip(lib, motion_id: int, sim: list, ref: list, broke: bool, threshold: float) -> dict:
@@ -519,64 +531,16 @@ class ThreePointProtocol(ClipProtocol):
 
 
 def _run_three_point(policy: Callable, env, threshold: float, progress: bool) -> list[dict]:
-    # The queue of `_run_clips` (every world takes the next clip when its own ends), recording the
-    # three points and, where the env reports it, the full body.
+    # The clip queue, recording the three points and, where the env reports it, the full body.
     u = getattr(env, "unwrapped", env)
     refs = u.references
-    n, m = u.num_envs, refs.num_motions
     grace = int(getattr(u, "grace_steps", 0))
-    clip = np.full(n, -1, np.int64)
-    frames: list[list] = [[] for _ in range(n)]  # per world: (sim points, ref points[, sim body, ref body])
-    broke = np.zeros(n, bool)
-    rows: list[dict | None] = [None] * m
-
-    def record(worlds, info, terminated=None, truncated=None):
-        keys = ("point_pos", "ref_point_pos") + (("body_pos", "ref_body_pos") if "ref_body_pos" in info else ())
-        arrays = [np.asarray(info[k], np.float64)[worlds] for k in keys]
-        for k, w in enumerate(worlds):
-            frames[w].append([a[k] for a in arrays])
-        stop = np.linalg.norm(arrays[0] - arrays[1], axis=-1).max(axis=-1) > threshold
-        stop &= np.array([len(frames[w]) > grace for w in worlds], bool)  # frame index >= grace
-        if terminated is not None:
-            broke[worlds] = terminated[worlds]
-            stop |= terminated[worlds] | truncated[worlds]
-        return worlds[stop]
-
-    first = min(n, m)
-    obs, info = env.reset(seed=0, options={"motion_ids": np.arange(n) % m, "start": "beginning"})
-    obs = np.array(obs, copy=True)
-    clip[:first] = np.arange(first)
-    next_clip = first
-    done = record(np.arange(first), info)
-    bar = tqdm(total=m, desc="evaluate", unit="clip", disable=not progress)
-    try:
-        while True:
-            while len(done):
-                for w in done:
-                    rows[clip[w]] = _three_point_row(refs.names[clip[w]], int(clip[w]), frames[w], broke[w],
-                                                     threshold, grace)
-                    frames[w], clip[w], broke[w] = [], -1, False
-                    bar.update(1)
-                take = done[:m - next_clip]
-                if not len(take):
-                    break
-                ids = np.arange(next_clip, next_clip + len(take))
-                next_clip += len(take)
-                mask = np.zeros(n, bool)
-                mask[take] = True
-                new_obs, info = env.reset(options={"reset_mask": mask, "motion_ids": ids, "start": "beginning"})
-                obs[take] = np.asarray(new_obs)[take]
-                clip[take] = ids
-                done = record(take, info)
-            active = np.flatnonzero(clip >= 0)
-            if not len(active):
-                break
-            obs, _, terminated, truncated, info = env.step(_act(policy, obs))
-            obs = np.array(obs, copy=True)
-            done = record(active, info, np.asarray(terminated, bool), np.asarray(truncated, bool))
-    finally:
-        bar.close()
-    return rows
+    return _clip_queue(
+        policy, env, refs.num_motions,
+        lambda info: ("point_pos", "ref_point_pos") + (("body_pos", "ref_body_pos") if "ref_body_pos" in info else ()),
+        # A point beyond `threshold` fails the clip, from frame index `grace` on.
+        lambda a, lengths: (np.linalg.norm(a[0] - a[1], axis=-1).max(axis=-1) > threshold) & (lengths > grace),
+        lambda c, frames, broke: _three_point_row(refs.names[c], c, frames, broke, threshold, grace), progress)
 
 
 def _three_point_row(name: str, motion_id: int, frames: list, broke: bool, threshold: float,

@@ -224,6 +224,16 @@ class HumanoidVecEnv(VectorEnv):
             if motion_ids is not None:
                 raise ValueError("reset option motion_ids needs an env made with motions=")
             return qpos, qvel
+        self.start_motion[ids], self.start_frame[ids] = self.start_frames(lib, n, motion_ids, start)
+        hq, hv = lib.qpos_qvel(self.start_frame[ids])
+        qpos[:, self.humanoid.qpos], qvel[:, self.humanoid.qvel] = hq, hv
+        return qpos, qvel
+
+    def start_frames(self, lib, n: int, motion_ids=None, start: str = "random") -> tuple[np.ndarray, np.ndarray]:
+        """(clip ids, global frames) of `n` start poses in `lib` (a MotionLib or any library with
+        its `lengths`, `starts`, `num_motions` and `sample_motions`): clips drawn by the library's
+        weights unless `motion_ids`; a random frame that leaves one step to go (a
+        `beginning_share` of them moved to the first frame), or the first frame."""
         if start not in STARTS:
             raise ValueError(f"start must be one of {STARTS}, got {start!r}")
         rng = self.np_random
@@ -238,11 +248,7 @@ class HumanoidVecEnv(VectorEnv):
             # A share of the random starts goes to the clip's first frame, so the clip's start,
             # which random starts rarely train on, is learnt too (AMP's "stand still" trap).
             local[rng.random(n) < self.beginning_share] = 0
-        self.start_motion[ids] = motion_ids
-        self.start_frame[ids] = lib.starts[motion_ids] + local
-        hq, hv = lib.qpos_qvel(self.start_frame[ids])
-        qpos[:, self.humanoid.qpos], qvel[:, self.humanoid.qvel] = hq, hv
-        return qpos, qvel
+        return motion_ids, lib.starts[motion_ids] + local
 
     @property
     def observation_structure(self) -> dict[str, slice]:

@@ -140,15 +140,8 @@ class ImitationVecEnv(HumanoidVecEnv):
                  residual_scale: float = RESIDUAL_SCALE, recovery: bool | dict = False, **kwargs):
         if motions is None:
             raise ValueError("motions: imitation needs reference clips (a clip name, file, directory or list)")
-        self.reward_weights = _merge("reward_weights", REWARD_WEIGHTS, reward_weights)
-        self.reward_scales = _merge("reward_scales", REWARD_SCALES, reward_scales)
-        self.energy_weight = float(energy_weight)
-        if termination_distance is not None and not float(termination_distance) > 0:
-            raise ValueError(f"termination_distance must be a positive distance in metres or None, "
-                             f"got {termination_distance!r}")
-        self.termination_distance = termination_distance
-        self.residual_scale = check_action_mode(action_mode, residual_scale)
-        self.action_mode = action_mode
+        set_tracking_settings(self, reward_weights, reward_scales, energy_weight, termination_distance,
+                              action_mode, residual_scale)
         super().__init__(num_envs, motions=motions, **kwargs)
         self.ref = ReferenceTracker(self.motion_lib, self.num_envs)
         self.recovery = None
@@ -219,6 +212,22 @@ class KeypointImitationVecEnv(ImitationVecEnv):
 
     task_layout = {"goal": KEYPOINT_GOAL_LAYOUT}
     goal = "keypoint"
+
+
+def set_tracking_settings(env, reward_weights, reward_scales, energy_weight, termination_distance,
+                          action_mode, residual_scale) -> None:
+    """Check the kwargs every reference-tracking task shares and set them on `env` (reward
+    weights and scales merged over the defaults, energy weight, termination distance, action mode
+    and residual scale); a ValueError names a bad one."""
+    env.reward_weights = _merge("reward_weights", REWARD_WEIGHTS, reward_weights)
+    env.reward_scales = _merge("reward_scales", REWARD_SCALES, reward_scales)
+    env.energy_weight = float(energy_weight)
+    if termination_distance is not None and not float(termination_distance) > 0:
+        raise ValueError(f"termination_distance must be a positive distance in metres or None, "
+                         f"got {termination_distance!r}")
+    env.termination_distance = termination_distance
+    env.residual_scale = check_action_mode(action_mode, residual_scale)
+    env.action_mode = action_mode
 
 
 def _merge(name: str, defaults: dict, given: dict | None) -> dict:

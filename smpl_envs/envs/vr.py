@@ -64,9 +64,9 @@ from ..features import BodyState, body_goal_obs, goal_layout, self_obs
 from ..humanoid.skeleton import BODY_NAMES
 from ..motion.three_point import TRACKED, ThreePointLib, as_three_point_lib
 from ..rotations import quat_mul, yaw_quat
-from .base import HumanoidVecEnv, STARTS, load_motions
-from .imitation import ENERGY_WEIGHT, REWARD_SCALES, REWARD_WEIGHTS, _merge, imitation_reward
-from .reference import RESIDUAL_SCALE, ReferenceTracker, check_action_mode
+from .base import HumanoidVecEnv, load_motions
+from .imitation import ENERGY_WEIGHT, imitation_reward, set_tracking_settings
+from .reference import RESIDUAL_SCALE, ReferenceTracker
 
 VR_GOAL_LAYOUT = goal_layout(len(TRACKED))
 TERMINATION_DISTANCE = 0.25
@@ -129,15 +129,8 @@ class VRTrackingVecEnv(HumanoidVecEnv):
             raise ValueError("motions: VR tracking needs references (clips or three-point streams)")
         if reward not in REWARDS:
             raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
-        self.reward_weights = _merge("reward_weights", REWARD_WEIGHTS, reward_weights)
-        self.reward_scales = _merge("reward_scales", REWARD_SCALES, reward_scales)
-        self.energy_weight = float(energy_weight)
-        if termination_distance is not None and not float(termination_distance) > 0:
-            raise ValueError(f"termination_distance must be a positive distance in metres or None, "
-                             f"got {termination_distance!r}")
-        self.termination_distance = termination_distance
-        self.residual_scale = check_action_mode(action_mode, residual_scale)
-        self.action_mode = action_mode
+        set_tracking_settings(self, reward_weights, reward_scales, energy_weight, termination_distance,
+                              action_mode, residual_scale)
         self.streams = as_three_point_lib(motions)
         if self.streams is not None:
             if reward == "full":
@@ -187,19 +180,8 @@ class VRTrackingVecEnv(HumanoidVecEnv):
     def _stream_start(self, ids, motion_ids, start):
         """Full-model (qpos, qvel) of worlds `ids` starting on streams: the standing pose turned
         about z to the stream head's heading and moved under the stream head (xy)."""
-        lib, n, rng = self.streams, len(ids), self.np_random
-        if start not in STARTS:
-            raise ValueError(f"start must be one of {STARTS}, got {start!r}")
-        if motion_ids is None:
-            motion_ids = lib.sample_motions(n, rng)
-        motion_ids = np.asarray(motion_ids, np.int64).reshape(-1)
-        if len(motion_ids) != n or motion_ids.min() < 0 or motion_ids.max() >= lib.num_motions:
-            raise ValueError(f"motion_ids must be {n} indices in [0, {lib.num_motions})")
-        local = ((rng.random(n) * (lib.lengths[motion_ids] - 1)).astype(np.int64) if start == "random"
-                 else np.zeros(n, np.int64))
-        if start == "random" and self.beginning_share > 0:
-            local[rng.random(n) < self.beginning_share] = 0
-        frames = lib.starts[motion_ids] + local
+        lib, n = self.streams, len(ids)
+        motion_ids, frames = self.start_frames(lib, n, motion_ids, start)
         self.start_motion[ids], self.start_frame[ids] = motion_ids, frames
         turn = yaw_of(lib.rot[frames, 0].astype(np.float64)) - self._start_yaw
         c, s = np.cos(turn), np.sin(turn)

@@ -39,3 +39,30 @@ def sway_motion(fps: float = 120.0, seconds: float = 3.0, name: str = "sway") ->
 @pytest.fixture
 def sway():
     return sway_motion()
+
+
+def check_env_quietly(env) -> None:
+    """Gymnasium's env checker on `env.unwrapped`, without its warnings about unbounded boxes."""
+    import warnings
+
+    from gymnasium.utils.env_checker import check_env
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*(infinity|too low|too high).*")
+        check_env(env.unwrapped)
+
+
+def seeded_rollouts(env, seeds=(3, 3, 4), steps: int = 20):
+    """One rollout of a vector env per seed (reset with it, then `steps` fixed random actions in
+    [-0.3, 0.3]): per seed the list [obs0, obs1, rew1, term1, trunc1, ...] and the last info, for
+    checking that equal seeds repeat and different seeds differ."""
+    n, act = env.num_envs, env.single_action_space.shape[0]
+    runs = []
+    for seed in seeds:
+        out = [env.reset(seed=seed)[0]]
+        rng = np.random.default_rng(0)
+        for _ in range(steps):
+            obs, rew, term, trunc, info = env.step(rng.uniform(-0.3, 0.3, (n, act)))
+            out += [obs, rew, term, trunc]
+        runs.append((out, info))
+    return runs

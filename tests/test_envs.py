@@ -1,16 +1,14 @@
 """The registered imitation envs: Gymnasium contracts, batching, reproducibility, task behaviour."""
 
-import warnings
-
 import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
 
 import smpl_envs  # noqa: F401  (registers the ids)
 from smpl_envs.envs import ImitationVecEnv
 from smpl_envs.sim import CPUSim
+from conftest import check_env_quietly
 
 IDS = ["SMPL/Imitation-v0", "SMPL/KeypointImitation-v0"]
 OBS_DIM = {"SMPL/Imitation-v0": 934, "SMPL/KeypointImitation-v0": 574}
@@ -19,9 +17,7 @@ OBS_DIM = {"SMPL/Imitation-v0": 934, "SMPL/KeypointImitation-v0": 574}
 @pytest.mark.parametrize("env_id", IDS)
 def test_env_checker_passes(env_id):
     env = gym.make(env_id, render_mode="rgb_array", render_size=(96, 72))
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*(infinity|too low|too high).*")
-        check_env(env.unwrapped)
+    check_env_quietly(env)
     assert env.observation_space.shape == (OBS_DIM[env_id],)
     assert env.action_space.shape == (69,)
     env.close()

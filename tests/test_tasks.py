@@ -1,12 +1,10 @@
 """Every registered task on the task-agnostic core: Gymnasium contracts, the goal tasks' rewards
 with known answers, their schedules, falls, bad input, and an outside client (SB3)."""
 
-import warnings
 
 import gymnasium as gym
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
 
 import smpl_envs
 from smpl_envs.envs.base import fallen
@@ -15,6 +13,7 @@ from smpl_envs.envs.speed import speed_reward
 from smpl_envs.envs.strike import STRIKERS, strike_reward
 from smpl_envs.features import heading_rotation
 from smpl_envs.humanoid import BODY_NAMES
+from conftest import check_env_quietly, seeded_rollouts
 
 OBS_DIM = {"SMPL/Imitation-v0": 934, "SMPL/KeypointImitation-v0": 574, "SMPL/Speed-v0": 361,
            "SMPL/Reach-v0": 361, "SMPL/Strike-v0": 373}
@@ -34,28 +33,16 @@ def test_every_id_is_registered_with_both_entry_points():
 @pytest.mark.parametrize("env_id", GOAL_IDS)
 def test_env_checker_passes(env_id):
     env = gym.make(env_id, motions="walk", render_mode="rgb_array", render_size=(96, 72))
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*(infinity|too low|too high).*")
-        check_env(env.unwrapped)
+    check_env_quietly(env)
     assert env.observation_space.shape == (OBS_DIM[env_id],) and env.action_space.shape == (69,)
     env.close()
 
 
 @pytest.mark.parametrize("env_id", GOAL_IDS)
 def test_make_vec_is_native_batched_and_seeded(env_id):
-    def rollout(env, seed):
-        out = [env.reset(seed=seed)[0]]
-        rng = np.random.default_rng(0)
-        for _ in range(25):
-            obs, rew, term, trunc, info = env.step(rng.uniform(-0.3, 0.3, (8, 69)))
-            out += [obs, rew, term, trunc]
-        return out, info
-
     env = gym.make_vec(env_id, num_envs=8, motions=["walk", "run"])
     assert env.sim.num_worlds == 8 and env.metadata["autoreset_mode"] == gym.vector.AutoresetMode.NEXT_STEP
-    a, info = rollout(env, 3)
-    b, _ = rollout(env, 3)
-    c, _ = rollout(env, 4)
+    (a, info), (b, _), (c, _) = seeded_rollouts(env, steps=25)
     assert a[0].shape == (8, OBS_DIM[env_id]) and a[0].dtype == np.float32
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
     assert not np.array_equal(a[0], c[0])

@@ -2,18 +2,17 @@
 shares, the height map on a hand-made step, grounded start poses, terrain-relative falls, the
 off-path rule, bad input."""
 
-import warnings
 
 import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
 
 import smpl_envs
 from smpl_envs.envs.terrain import MAP_OFFSETS, height_map, make_paths, path_at, path_reward
 from smpl_envs.humanoid import BODY_NAMES
 from smpl_envs.terrain import DEFAULT_SHARES, SPACING, TERRAIN_TYPES, Terrain, make_terrain, stair_height
+from conftest import check_env_quietly, seeded_rollouts
 
 ENV_ID = "SMPL/Terrain-v0"
 OBS_DIM = 358 + 20 + 1024
@@ -28,9 +27,7 @@ def test_registered_with_both_entry_points_and_a_time_limit():
 @pytest.mark.parametrize("kwargs", [SMALL, dict(terrain="flat")], ids=["tiles", "flat"])
 def test_env_checker_passes(kwargs):
     env = gym.make(ENV_ID, motions="walk", render_mode="rgb_array", render_size=(96, 72), **kwargs)
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*(infinity|too low|too high).*")
-        check_env(env.unwrapped)
+    check_env_quietly(env)
     assert env.observation_space.shape == (OBS_DIM,) and env.action_space.shape == (69,)
     env.reset(seed=0)
     frame = env.render()
@@ -39,19 +36,9 @@ def test_env_checker_passes(kwargs):
 
 
 def test_make_vec_is_native_batched_and_seeded():
-    def rollout(env, seed):
-        out = [env.reset(seed=seed)[0]]
-        rng = np.random.default_rng(0)
-        for _ in range(20):
-            obs, rew, term, trunc, info = env.step(rng.uniform(-0.3, 0.3, (8, 69)))
-            out += [obs, rew, term, trunc]
-        return out, info
-
     env = gym.make_vec(ENV_ID, num_envs=8, motions=["walk", "run"], **SMALL)
     assert env.sim.num_worlds == 8 and env.model.nhfield == 1
-    a, info = rollout(env, 3)
-    b, _ = rollout(env, 3)
-    c, _ = rollout(env, 4)
+    (a, info), (b, _), (c, _) = seeded_rollouts(env)
     assert a[0].shape == (8, OBS_DIM) and a[0].dtype == np.float32
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
     assert not np.array_equal(a[0], c[0])

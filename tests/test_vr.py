@@ -2,13 +2,11 @@
 that it is Imitation's goal of those bodies), rewards, termination, three-point stream files, and
 the evaluation protocol."""
 
-import warnings
 from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
 
 import smpl_envs
 from smpl_envs.envs.imitation import imitation_reward
@@ -19,6 +17,7 @@ from smpl_envs.humanoid import BODY_NAMES
 from smpl_envs.motion import MotionFileError, MotionLib
 from smpl_envs.motion.three_point import (TRACKED, ThreePointStream, load_stream, write_stream)
 from smpl_envs.rotations import quat_to_matrix
+from conftest import check_env_quietly, seeded_rollouts
 
 ID = "SMPL/VRTracking-v0"
 GOAL = slice(358, 430)
@@ -40,9 +39,7 @@ def _vec(**kwargs):
 def test_registered_sizes_and_env_checker():
     assert ID in smpl_envs.ENV_IDS and layout_size(VR_GOAL_LAYOUT) == 72
     env = gym.make(ID, render_mode="rgb_array", render_size=(96, 72))
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*(infinity|too low|too high).*")
-        check_env(env.unwrapped)
+    check_env_quietly(env)
     assert env.observation_space.shape == (430,) and env.action_space.shape == (69,)
     env.reset(seed=0)
     assert env.render().shape == (72, 96, 3)
@@ -50,19 +47,9 @@ def test_registered_sizes_and_env_checker():
 
 
 def test_make_vec_is_native_batched_and_seeded():
-    def rollout(seed):
-        out = [env.reset(seed=seed)[0]]
-        rng = np.random.default_rng(0)
-        for _ in range(20):
-            obs, rew, term, trunc, info = env.step(rng.uniform(-0.3, 0.3, (8, 69)))
-            out += [obs, rew, term, trunc]
-        return out, info
-
     env = gym.make_vec(ID, num_envs=8, motions=["walk", "run"])
     assert env.sim.num_worlds == 8
-    a, info = rollout(3)
-    b, _ = rollout(3)
-    c, _ = rollout(4)
+    (a, info), (b, _), (c, _) = seeded_rollouts(env)
     assert a[0].shape == (8, 430) and a[0].dtype == np.float32
     assert all(np.array_equal(x, y) for x, y in zip(a, b)) and not np.array_equal(a[0], c[0])
     assert info["point_pos"].shape == (8, 3, 3) and info["ref_body_pos"].shape == (8, 24, 3)

@@ -62,7 +62,7 @@ import numpy as np
 from ..evaluation import ThreePointProtocol
 from ..features import BodyState, body_goal_obs, goal_layout, self_obs
 from ..humanoid.skeleton import BODY_NAMES
-from ..motion.three_point import TRACKED, ThreePointLib, as_three_point_lib
+from ..motion.three_point import TRACKED, as_three_point_lib
 from ..rotations import quat_mul, yaw_quat
 from .base import HumanoidVecEnv, load_motions
 from .imitation import ENERGY_WEIGHT, imitation_reward, set_tracking_settings

@@ -35,6 +35,7 @@ from ..features import BodyState, rotmat_from_quat
 from ..humanoid.skeleton import BODY_NAMES
 from ..rotations import quat_from_matrix, quat_slerp
 from .kinematics import Segments, angular_velocity, smooth, time_derivative
+from .library import MotionLib
 from .loaders import MotionFileError, _check, _check_fps
 from .motion import FPS, VELOCITY_SMOOTHING_SIGMA
 
@@ -201,16 +202,12 @@ class ThreePointLib:
             raise FileNotFoundError(f"no .npz stream files in {source!r}")
         return cls([load_stream(f) for f in files])
 
-    @property
-    def num_motions(self) -> int:
-        return len(self.names)
-
-    @property
-    def num_frames(self) -> int:
-        return self.seg.num_frames
-
-    def __len__(self) -> int:
-        return self.num_motions
+    # The clip-index queries (start_frames and the evaluation's clip queue use them) are
+    # MotionLib's own: they read only names, seg and weights, which a ThreePointLib has too.
+    num_motions = MotionLib.num_motions
+    num_frames = MotionLib.num_frames
+    __len__ = MotionLib.__len__
+    sample_motions = MotionLib.sample_motions
 
     def __repr__(self) -> str:
         return f"ThreePointLib({self.num_motions} streams, {self.num_frames} frames @ {self.fps:g} fps)"
@@ -218,9 +215,6 @@ class ThreePointLib:
     def stream(self, i: int) -> ThreePointStream:
         s = slice(self.starts[i], self.starts[i] + self.lengths[i])
         return ThreePointStream(self.names[i], self.pos[s].astype(float), self.quat[s].astype(float), self.sources[i])
-
-    def sample_motions(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        return rng.choice(self.num_motions, size=n, p=self.weights)
 
     def body_state(self, frames: np.ndarray) -> BodyState:
         """The three points at global `frames` (N,) as a BodyState over 3 bodies (no joint

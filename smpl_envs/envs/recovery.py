@@ -162,7 +162,6 @@ class RecoveryController:
         self.hum = env.humanoid
         n = env.num_envs
         self.start_kind = np.zeros(n, np.int64)
-        self.recovering = np.zeros(n, bool)
         self.root_distance = np.zeros(n)
         self.grace = np.zeros(n, np.int64)
 
@@ -192,7 +191,6 @@ class RecoveryController:
         self.grace[ids] = np.where(kinds > 0, self.grace_steps, 0)
         d = np.linalg.norm(q[:, :3] - ref_root, axis=-1)
         self.root_distance[ids] = d
-        self.recovering[ids] = d > self.switch_distance
         return qpos, qvel
 
     def evaluate(self, body, ref, reward, terms, terminated, truncated, rng):
@@ -201,7 +199,6 @@ class RecoveryController:
         rec = d > self.switch_distance
         point = point_reward(self.root_distance, d, self.point_scale, self.point_clip)
         self.root_distance = d
-        self.recovering = rec
         if rec.any():
             w = np.where(rec, self.imitation_weight, 1.0)
             terms = {k: (v if k == "energy" else v * w) for k, v in terms.items()}
@@ -226,7 +223,7 @@ class RecoveryController:
         return recovery_reference(body, ref_next, far, self.clamp_distance) if far.any() else ref_next
 
     def info(self) -> dict:
-        return {"recovering": self.recovering.copy(), "root_distance": self.root_distance.copy(),
+        return {"recovering": self.root_distance > self.switch_distance, "root_distance": self.root_distance.copy(),
                 "start_kind": self.start_kind.copy()}
 
 

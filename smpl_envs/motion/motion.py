@@ -24,6 +24,17 @@ FORMAT_VERSION = 1
 VELOCITY_SMOOTHING_SIGMA = 1.0  # frames; light, so velocities keep the motion's sharp events
 
 
+def resample_frames(num_frames: int, src_fps: float, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(i0, i1, w): for every frame of `num_frames` frames at `src_fps` resampled to `fps`, the two
+    source frames around its time and the blend weight of the second (0 where a target time is a
+    source frame, as when `src_fps` is a multiple of `fps`)."""
+    n = int(np.floor((num_frames - 1) / src_fps * fps + 1e-6)) + 1
+    src = np.arange(n) * (src_fps / fps)
+    i0 = np.minimum(np.floor(src + 1e-9).astype(int), num_frames - 1)
+    i1 = np.minimum(i0 + 1, num_frames - 1)
+    return i0, i1, np.clip(src - i0, 0.0, 1.0)
+
+
 @dataclass
 class RawMotion:
     """A clip as read from a file: pelvis position (T, 3) and local rotations (T, 24, 4, wxyz) in
@@ -46,12 +57,7 @@ class RawMotion:
         rate is a multiple of `fps` every target time is a source frame and nothing is blended."""
         if self.fps == fps:
             return self
-        duration = (self.num_frames - 1) / self.fps
-        n = int(np.floor(duration * fps + 1e-6)) + 1
-        src = np.arange(n) * (self.fps / fps)
-        i0 = np.minimum(np.floor(src + 1e-9).astype(int), self.num_frames - 1)
-        i1 = np.minimum(i0 + 1, self.num_frames - 1)
-        w = np.clip(src - i0, 0.0, 1.0)
+        i0, i1, w = resample_frames(self.num_frames, self.fps, fps)
         root = self.root_pos[i0] + w[:, None] * (self.root_pos[i1] - self.root_pos[i0])
         quat = quat_slerp(self.local_quat[i0], self.local_quat[i1], w[:, None, None])
         return replace(self, fps=fps, root_pos=root, local_quat=quat)

@@ -37,7 +37,7 @@ from ..rotations import quat_from_matrix, quat_slerp
 from .kinematics import Segments, angular_velocity, smooth, time_derivative
 from .library import MotionLib
 from .loaders import MotionFileError, _check, _check_fps
-from .motion import FPS, VELOCITY_SMOOTHING_SIGMA
+from .motion import FPS, VELOCITY_SMOOTHING_SIGMA, resample_frames
 
 STREAM_FORMAT = "smpl_envs.three_point"
 STREAM_VERSION = 1
@@ -108,11 +108,7 @@ def validate_stream(positions, rotations, fps=FPS, where: str = "stream") -> tup
 
 def _resampled(pos: np.ndarray, quat: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
     """A stream at `fps` resampled to 30 fps (the rule of RawMotion.resampled)."""
-    n = int(np.floor((len(pos) - 1) / fps * FPS + 1e-6)) + 1
-    src = np.arange(n) * (fps / FPS)
-    i0 = np.minimum(np.floor(src + 1e-9).astype(int), len(pos) - 1)
-    i1 = np.minimum(i0 + 1, len(pos) - 1)
-    w = np.clip(src - i0, 0.0, 1.0)
+    i0, i1, w = resample_frames(len(pos), fps, FPS)
     return (pos[i0] + w[:, None, None] * (pos[i1] - pos[i0]),
             quat_slerp(quat[i0], quat[i1], w[:, None, None]))
 

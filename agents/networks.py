@@ -87,8 +87,13 @@ class Policy(nn.Module):
         """Fold a rollout's returns into the return statistics."""
 
     def value(self, nobs: torch.Tensor) -> torch.Tensor:
-        """(B,) value estimate in return units (bootstraps; override to skip the actor)."""
+        """(B,) value estimate in return units (override to skip the actor)."""
         return self(nobs)[1]
+
+    def action_distribution(self, nobs: torch.Tensor) -> torch.distributions.Distribution:
+        """The action distribution alone, what a rollout needs between env steps (override to
+        skip the critic)."""
+        return self(nobs)[0]
 
     # --- acting and scoring
     @torch.no_grad()
@@ -144,10 +149,14 @@ class ActorCritic(Policy):
 
     def distribution(self, nobs: torch.Tensor) -> Normal:
         mu = self.actor(nobs)
-        return Normal(mu, self.log_std.exp().expand_as(mu))
+        # Validation checks every argument on every call: a tenth of a rollout step's policy time.
+        return Normal(mu, self.log_std.exp().expand_as(mu), validate_args=False)
 
     def forward(self, nobs: torch.Tensor) -> tuple[Normal, torch.Tensor]:
         return self.distribution(nobs), self.value(nobs)
+
+    def action_distribution(self, nobs: torch.Tensor) -> Normal:
+        return self.distribution(nobs)
 
     def value(self, nobs: torch.Tensor) -> torch.Tensor:
         v = self.critic(nobs).squeeze(-1)

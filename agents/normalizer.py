@@ -25,7 +25,7 @@ class RunningNorm(nn.Module):
         x = x.reshape(-1, *self.mean.shape).to(torch.float64)
         if x.shape[0] == 0:
             return
-        batch_mean, batch_var, n = x.mean(0), x.var(0, unbiased=False), x.shape[0]
+        (batch_var, batch_mean), n = torch.var_mean(x, 0, correction=0), x.shape[0]
         delta, total = batch_mean - self.mean, self.count + n
         # Chan et al.'s parallel combination of two (mean, M2) summaries.
         m2 = self.var * self.count + batch_var * n + delta.square() * self.count * n / total

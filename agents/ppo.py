@@ -15,7 +15,6 @@ and every step), `_shape_rewards` (before GAE), `_update_extra` (after the polic
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import time
 import warnings
@@ -34,7 +33,7 @@ from .checkpoint import load_checkpoint, save_checkpoint
 from .config import AgentConfig
 from .logger import Logger
 from .networks import ActorCritic, Policy
-from .rollout import RolloutBuffer, RolloutCollector, RolloutHooks
+from .rollout import RolloutBuffer, RolloutCollector, RolloutHooks, torch_threads
 from .vec import make_vec_env
 
 
@@ -263,7 +262,7 @@ class PPO:
             while self.num_timesteps < target:
                 self._set_learning_rate(target)
                 buffer = self._collect()
-                with _torch_threads(self.update_threads):
+                with torch_threads(self.update_threads):
                     self._update(buffer)
                 self.iteration += 1
                 bar.update(self.num_timesteps - bar.n)
@@ -287,7 +286,7 @@ class PPO:
     def _start_collector(self, seed: int | None) -> None:
         """A collector on the attached env, which it resets (with `seed`)."""
         self._collector = RolloutCollector(self.env, self.policy, self._to_env_action, self.episodes,
-                                           self._rollout_hooks(), self.device)
+                                           self._rollout_hooks(), self.device, value_threads=self.update_threads)
         self._collector.reset(seed=seed)
 
     def _set_learning_rate(self, target: int) -> None:
@@ -468,19 +467,6 @@ class PPO:
         agent._load_extra_state(ckpt["extra"])
         agent.set_logger(log_dir, tensorboard)
         return agent
-
-
-@contextlib.contextmanager
-def _torch_threads(n: int | None):
-    if n is None or n == torch.get_num_threads():
-        yield
-        return
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def _plain(x: Any) -> Any:

@@ -9,6 +9,7 @@ import agents
 from agents import AMP, PPO, ActorCritic, AMPConfig, CheckpointCallback, PPOConfig, RolloutBuffer
 from agents.checkpoint import save_checkpoint
 from agents.logger import Logger
+from agents.rollout import minibatches
 
 TINY = dict(actor_hidden=(32, 32), critic_hidden=(32, 32), verbose=0)
 
@@ -73,6 +74,17 @@ def test_minibatches_cover_valid_transitions_once_per_epoch():
     seen = [mb["obs"][:, 0] for mb in buf.minibatches(5)]
     assert [len(x) for x in seen] == [5, 5]  # 10 valid, in two full minibatches
     assert sorted(torch.cat(seen).tolist()) == [0, 1, 2, 3, 4, 6, 7, 8, 10, 11]
+
+
+def test_minibatches_use_every_transition_when_a_few_steps_are_invalid():
+    # 64 x 32 steps with 3 reset-only ones: two minibatches of ~1022, none left out (cutting
+    # whole 1024-pieces would have trained on one minibatch and dropped the other 1021).
+    data = {"x": torch.arange(2045.0)}
+    sizes = [len(mb["x"]) for mb in minibatches(data, 1024)]
+    assert sizes == [1023, 1022]
+    seen = torch.cat([mb["x"] for mb in minibatches(data, 1024)])
+    assert sorted(seen.tolist()) == data["x"].tolist()
+    assert [len(mb["x"]) for mb in minibatches(data, 4096)] == [2045]
 
 
 def test_save_load_gives_identical_deterministic_actions(tmp_path):

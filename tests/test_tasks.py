@@ -351,3 +351,33 @@ def test_goal_tasks_example_runs(tmp_path):
         assert json.loads((tmp_path / f"reach_{label}.json").read_text())["summary"]["episodes"] == 2
     assert (tmp_path / "reach_zero.mp4").stat().st_size > 1000
     assert "hand_distance" in out.stdout
+
+
+def test_failure_sampling_draws_failing_clips_more_often():
+    from smpl_envs.envs.clip_sampling import FailureWeightedClips
+
+    s = FailureWeightedClips(3, share=0.5, decay=1.0)
+    base = np.full(3, 1 / 3)
+    np.testing.assert_allclose(s.weights(base), base)  # nothing failed yet: the library's weights
+    clips = np.array([0, 0, 1, 1, 2, 2])
+    s.record(clips, None, np.array([0, 0, 1, 0, 1, 1], bool))       # rates 0, 1/2, 1
+    s.record(clips, np.array([1, 1, 0, 0, 1, 1], bool), np.zeros(6, bool))  # clip 1 idle: rates 0, 1/2, 1/2
+    np.testing.assert_allclose(s.rates(), [0.0, 0.5, 0.5])
+    np.testing.assert_allclose(s.weights(base), [0.5 / 3, 0.5 / 3 + 0.25, 0.5 / 3 + 0.25])
+
+    # Through the env: PD tracking alone (the zero residual) holds "stand" far longer than "run",
+    # so "run" is drawn more often than the library's even split.
+    env = gym.make_vec("SMPL/Imitation-v0", num_envs=32, motions=["stand", "run"], failure_sampling=0.8,
+                       action_mode="residual", termination_distance=0.3, num_threads=1)
+    env.reset(seed=0)
+    for _ in range(90):
+        env.step(np.zeros((32, 69), np.float32))
+    rates = env.clip_sampler.rates()
+    assert rates[1] > 2 * rates[0] > 0
+    w = env.clip_sampler.weights(env.motion_lib.weights)
+    assert abs(w.sum() - 1) < 1e-9 and w[1] > 0.6
+    with pytest.raises(ValueError, match="failure_sampling"):
+        gym.make_vec("SMPL/Imitation-v0", num_envs=1, failure_sampling=1.5)
+    with pytest.raises(ValueError, match="failure_sampling"):
+        gym.make_vec("SMPL/Speed-v0", num_envs=1, failure_sampling=0.5)
+    env.close()

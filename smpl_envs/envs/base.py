@@ -46,6 +46,7 @@ from ..humanoid.builder import build_spec, humanoid_addresses
 from ..humanoid.skeleton import ACTION_SCALE, BODY_NAMES
 from ..motion.library import MotionLib
 from ..sim import CPUSim
+from .clip_sampling import FailureWeightedClips
 
 CONTROL_FPS = 30
 # "human" opens MuJoCo's viewer, so it is only offered where a display exists.
@@ -112,7 +113,9 @@ class HumanoidVecEnv(VectorEnv):
 
     Core kwargs (every task): motions (clips for start poses, references or style; None: the rest
     pose), start ("random" frame or "beginning" of a clip), beginning_share (the fraction of
-    random starts moved to a clip's first frame), cache (the MotionLib's disk cache),
+    random starts moved to a clip's first frame), failure_sampling (the share of start clips drawn
+    by their recent failure rate, PHC's hard-negative mining: `clip_sampling`), cache (the
+    MotionLib's disk cache),
     max_episode_steps, autoreset_mode, substeps, num_threads, render_mode, render_size,
     render_world, show_markers.
     """
@@ -130,6 +133,7 @@ class HumanoidVecEnv(VectorEnv):
         motions: str | os.PathLike | list | MotionLib | None = None,
         start: str = "random",
         beginning_share: float = 0.0,
+        failure_sampling: float = 0.0,
         cache: bool = True,
         max_episode_steps: int | None = None,
         autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
@@ -151,6 +155,12 @@ class HumanoidVecEnv(VectorEnv):
         if not 0 <= int(render_world) < self.num_envs:
             raise ValueError(f"render_world must be in [0, {self.num_envs}), got {render_world!r}")
         self.motion_lib = None if motions is None else load_motions(motions, cache=cache)
+        if not (isinstance(failure_sampling, (int, float)) and 0.0 <= float(failure_sampling) <= 1.0):
+            raise ValueError(f"failure_sampling must be a fraction in [0, 1], got {failure_sampling!r}")
+        if failure_sampling and self.motion_lib is None:
+            raise ValueError("failure_sampling needs clips to sample: pass motions=")
+        self.clip_sampler = (FailureWeightedClips(self.motion_lib.num_motions, failure_sampling)
+                             if failure_sampling else None)
         self.start = start
         self.max_episode_steps = _positive_int("max_episode_steps", max_episode_steps, allow_none=True)
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
@@ -237,7 +247,9 @@ class HumanoidVecEnv(VectorEnv):
         if start not in STARTS:
             raise ValueError(f"start must be one of {STARTS}, got {start!r}")
         rng = self.np_random
-        if motion_ids is None:
+        if motion_ids is None and self.clip_sampler is not None and lib is self.motion_lib:
+            motion_ids = rng.choice(lib.num_motions, size=n, p=self.clip_sampler.weights(lib.weights))
+        elif motion_ids is None:
             motion_ids = lib.sample_motions(n, rng)
         motion_ids = np.asarray(motion_ids, np.int64).reshape(-1)
         if len(motion_ids) != n or motion_ids.min() < 0 or motion_ids.max() >= lib.num_motions:
@@ -323,6 +335,8 @@ class HumanoidVecEnv(VectorEnv):
                 terminated &= running
                 truncated &= running
         truncated &= ~terminated
+        if self.clip_sampler is not None:
+            self.clip_sampler.record(self.start_motion, running, terminated)
         obs = self._observe(body, heading)
         info = self._info(body, obs, terms, diverged, task_info)
         obs = self._finish_obs(obs)

@@ -41,6 +41,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from ..backend import make_backend
 from ..features import SELF_OBS_LAYOUT, BodyState, amp_features, heading_rotation, layout_size, layout_slices
 from ..humanoid.builder import build_spec, humanoid_addresses
 from ..humanoid.skeleton import ACTION_SCALE, BODY_NAMES
@@ -117,7 +118,10 @@ class HumanoidVecEnv(VectorEnv):
     by their recent failure rate, PHC's hard-negative mining: `clip_sampling`), cache (the
     MotionLib's disk cache),
     max_episode_steps, autoreset_mode, substeps, num_threads, render_mode, render_size,
-    render_world, show_markers.
+    render_world, show_markers, backend ("cpu": MuJoCo, NumPy arrays; "warp": MuJoCo Warp on
+    `device`, torch tensors in and out; `smpl_envs.backend`) and device.
+
+    A task lists the backends its code runs on in `backends`.
     """
 
     metadata = {"render_modes": RENDER_MODES, "render_fps": CONTROL_FPS,
@@ -125,6 +129,7 @@ class HumanoidVecEnv(VectorEnv):
     task_layout: ClassVar[dict[str, tuple]] = {}
     evaluation: ClassVar[Any] = None
     reset_options: ClassVar[tuple[str, ...]] = ("motion_ids", "start")
+    backends: ClassVar[tuple[str, ...]] = ("cpu",)
 
     def __init__(
         self,
@@ -143,8 +148,15 @@ class HumanoidVecEnv(VectorEnv):
         render_size: tuple[int, int] = (640, 480),
         render_world: int = 0,
         show_markers: bool = True,
+        backend: str = "cpu",
+        device: str | None = None,
     ):
         self.num_envs = _positive_int("num_envs", num_envs)
+        if backend not in self.backends:
+            raise ValueError(f"{type(self).__name__} runs on backend {' or '.join(map(repr, self.backends))}, "
+                             f"got {backend!r}" + ("; so far the 'warp' backend serves Imitation and "
+                                                   "KeypointImitation" if backend == "warp" else ""))
+        self.backend = make_backend(backend, device)
         if start not in STARTS:
             raise ValueError(f"start must be one of {STARTS}, got {start!r}")
         if not 0.0 <= float(beginning_share) <= 1.0:
@@ -159,19 +171,34 @@ class HumanoidVecEnv(VectorEnv):
             raise ValueError(f"failure_sampling must be a fraction in [0, 1], got {failure_sampling!r}")
         if failure_sampling and self.motion_lib is None:
             raise ValueError("failure_sampling needs clips to sample: pass motions=")
-        self.clip_sampler = (FailureWeightedClips(self.motion_lib.num_motions, failure_sampling)
+        self.clip_sampler = (FailureWeightedClips(self.motion_lib.num_motions, failure_sampling, self.backend)
                              if failure_sampling else None)
+        # What the step reads of the clips, where the arrays live (the library itself on the host).
+        self.motion_frames = self.motion_lib
+        if self.motion_lib is not None and self.backend.name != "cpu":
+            from ..motion.library import DeviceFrames
+
+            self.motion_frames = DeviceFrames(self.motion_lib, self.backend.device)
         self.start = start
         self.max_episode_steps = _positive_int("max_episode_steps", max_episode_steps, allow_none=True)
         self.autoreset_mode = _autoreset_mode(autoreset_mode)
-        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
+        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode, "backend": backend,
+                         "device": None if self.backend.device is None else str(self.backend.device)}
 
         spec = build_spec()
         self._configure(spec)
         self.model = spec.compile()
         self.humanoid = humanoid_addresses(self.model)
-        self.sim = CPUSim(self.model, self.num_envs, _positive_int("substeps", substeps), num_threads, self.humanoid)
-        self.action_scale = np.asarray(ACTION_SCALE, dtype=np.float64)
+        substeps = _positive_int("substeps", substeps)
+        if self.backend.name == "cpu":
+            self.sim = CPUSim(self.model, self.num_envs, substeps, num_threads, self.humanoid)
+        else:
+            from ..sim.warp import WarpSim
+
+            self.sim = WarpSim(self.model, self.num_envs, substeps, device=str(self.backend.device),
+                               humanoid=self.humanoid)
+        self.action_scale = self.backend.asarray(ACTION_SCALE)
+        self._qpos0 = self.backend.asarray(self.model.qpos0)
 
         self.obs_dim = PROPRIO_DIM + sum(layout_size(layout) for layout in self.task_layout.values())
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (len(ACTION_SCALE),), np.float32)
@@ -185,11 +212,11 @@ class HumanoidVecEnv(VectorEnv):
         self.show_markers = bool(show_markers)
         self._renderer = self._viewer = None
 
-        n = self.num_envs
-        self.elapsed = np.zeros(n, np.int64)       # steps since each world's last reset
-        self.start_motion = np.zeros(n, np.int64)  # clip and global library frame of the start pose
-        self.start_frame = np.zeros(n, np.int64)
-        self._needs_reset = np.zeros(n, bool)
+        n, zeros = self.num_envs, self.backend.zeros
+        self.elapsed = zeros(n, "int")       # steps since each world's last reset
+        self.start_motion = zeros(n, "int")  # clip and global library frame of the start pose
+        self.start_frame = zeros(n, "int")
+        self._needs_reset = zeros(n, "bool")
 
     # ------------------------------------------------------------------ task interface (defaults)
     def _configure(self, spec: mujoco.MjSpec) -> None:
@@ -227,9 +254,9 @@ class HumanoidVecEnv(VectorEnv):
         its weights unless `motion_ids`; a random frame that leaves one step to go, or the first),
         or the model's rest pose when there are no clips. Records `start_motion` / `start_frame`."""
         n = len(ids)
-        qpos = np.tile(self.model.qpos0, (n, 1))
-        qvel = np.zeros((n, self.model.nv))
-        lib = self.motion_lib
+        qpos = self.backend.rows(self._qpos0, n)
+        qvel = self.backend.zeros((n, self.model.nv))
+        lib = self.motion_frames
         if lib is None:
             if motion_ids is not None:
                 raise ValueError("reset option motion_ids needs an env made with motions=")
@@ -246,20 +273,21 @@ class HumanoidVecEnv(VectorEnv):
         `beginning_share` of them moved to the first frame), or the first frame."""
         if start not in STARTS:
             raise ValueError(f"start must be one of {STARTS}, got {start!r}")
-        rng = self.np_random
-        if motion_ids is None and self.clip_sampler is not None and lib is self.motion_lib:
-            motion_ids = rng.choice(lib.num_motions, size=n, p=self.clip_sampler.weights(lib.weights))
-        elif motion_ids is None:
-            motion_ids = lib.sample_motions(n, rng)
-        motion_ids = np.asarray(motion_ids, np.int64).reshape(-1)
+        rng, b = self.np_random, self.backend
+        if motion_ids is None:
+            p = lib.weights
+            if self.clip_sampler is not None and lib is self.motion_frames:
+                p = self.clip_sampler.weights(p)
+            motion_ids = b.choice(rng, lib.num_motions, n, p)
+        motion_ids = b.asarray(motion_ids, "int").reshape(-1)
         if len(motion_ids) != n or motion_ids.min() < 0 or motion_ids.max() >= lib.num_motions:
             raise ValueError(f"motion_ids must be {n} indices in [0, {lib.num_motions})")
-        local = ((rng.random(n) * (lib.lengths[motion_ids] - 1)).astype(np.int64) if start == "random"
-                 else np.zeros(n, np.int64))
+        local = (b.asarray(b.uniform(rng, n) * (lib.lengths[motion_ids] - 1), "int") if start == "random"
+                 else b.zeros(n, "int"))
         if start == "random" and self.beginning_share > 0:
             # A share of the random starts goes to the clip's first frame, so the clip's start,
             # which random starts rarely train on, is learnt too (AMP's "stand still" trap).
-            local[rng.random(n) < self.beginning_share] = 0
+            local[b.uniform(rng, n) < self.beginning_share] = 0
         return motion_ids, lib.starts[motion_ids] + local
 
     @property
@@ -280,35 +308,38 @@ class HumanoidVecEnv(VectorEnv):
         unknown = sorted(set(options) - set(self.reset_options))
         if unknown:
             raise ValueError(f"unknown reset options {unknown}; known: reset_mask, {', '.join(self.reset_options)}")
-        ids = np.arange(self.num_envs) if mask is None else np.flatnonzero(self._check_mask(mask))
+        ids = self.backend.nonzero(self.backend.asarray(
+            np.ones(self.num_envs, bool) if mask is None else self._check_mask(mask), "bool"))
         self._reset_worlds(ids, options)
         body = self.sim.bodies
         heading = heading_rotation(body.rot[:, 0])
         obs = self._observe(body, heading)
-        info = self._info(body, obs, None, np.zeros(self.num_envs, bool), self._task_info(body))
+        info = self._info(body, obs, None, self.backend.zeros(self.num_envs, "bool"), self._task_info(body))
         obs = self._finish_obs(obs)
         if mask is not None:
             # Worlds left running keep their observation; only the reset ones change.
-            info["_reset"] = np.zeros(self.num_envs, bool)
+            info["_reset"] = self.backend.zeros(self.num_envs, "bool")
             info["_reset"][ids] = True
         return obs, info
 
     def step(self, actions):
-        actions = np.asarray(actions, dtype=np.float64)
-        if actions.shape != (self.num_envs, len(self.action_scale)):
-            raise ValueError(f"actions must have shape {(self.num_envs, len(self.action_scale))}, got {actions.shape}")
+        b, xp = self.backend, self.backend.xp
+        actions = b.asarray(actions)
+        if tuple(actions.shape) != (self.num_envs, len(self.action_scale)):
+            raise ValueError(f"actions must have shape {(self.num_envs, len(self.action_scale))}, "
+                             f"got {tuple(actions.shape)}")
         # A world handed NaN or inf ends its episode as diverged; the others carry on.
         broken = None
-        if not np.isfinite(actions.sum()):
-            broken = ~np.isfinite(actions).all(-1)
-            actions = np.where(broken[:, None], 0.0, actions)
+        if not xp.isfinite(actions.sum()):
+            broken = ~xp.isfinite(actions).all(-1)
+            actions = xp.where(broken[:, None], 0.0, actions)
 
         # NEXT_STEP autoreset: worlds that ended last step restart now and ignore their action.
         # The common case (nobody restarting) skips every mask below.
         running = None
         if self._needs_reset.any():
             running = ~self._needs_reset
-            self._reset_worlds(np.flatnonzero(self._needs_reset), {})
+            self._reset_worlds(b.nonzero(self._needs_reset), {})
         diverged = self.sim.step(self._ctrl(actions.clip(-1.0, 1.0)), active=running)
         if broken is not None:
             diverged |= broken
@@ -329,8 +360,8 @@ class HumanoidVecEnv(VectorEnv):
             truncated = truncated | (self.elapsed >= self.max_episode_steps)
         if running is not None or diverged.any():
             valid = ~diverged if running is None else running & ~diverged
-            reward = np.where(valid, reward, 0.0)
-            terms = {k: np.where(valid, v, 0.0) for k, v in terms.items()}
+            reward = xp.where(valid, reward, 0.0)
+            terms = {k: xp.where(valid, v, 0.0) for k, v in terms.items()}
             if running is not None:
                 terminated &= running
                 truncated &= running
@@ -345,9 +376,9 @@ class HumanoidVecEnv(VectorEnv):
         if self.autoreset_mode == AutoresetMode.NEXT_STEP:
             self._needs_reset = done
         elif self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
-            ids = np.flatnonzero(done)
-            info["final_info"], info["_final_info"] = {k: v.copy() for k, v in info.items()}, done
-            info["final_obs"], info["_final_obs"] = obs.copy(), done
+            ids = b.nonzero(done)
+            info["final_info"], info["_final_info"] = {k: b.copy(v) for k, v in info.items()}, done
+            info["final_obs"], info["_final_obs"] = b.copy(obs), done
             self._reset_worlds(ids, {})
             body = self.sim.bodies
             fresh_obs = self._observe(body, heading_rotation(body.rot[:, 0]))
@@ -356,11 +387,11 @@ class HumanoidVecEnv(VectorEnv):
             for k, v in fresh.items():
                 if k != "diverged":  # the flag reports this step's event in every mode
                     info[k][ids] = v[ids]
-        return obs, np.asarray(reward, np.float64), terminated, truncated, info
+        return obs, b.asarray(reward), terminated, truncated, info
 
     # ------------------------------------------------------------------ internals
     def _check_mask(self, mask) -> np.ndarray:
-        mask = np.asarray(mask)
+        mask = self.backend.to_numpy(mask) if not isinstance(mask, (np.ndarray, list, tuple)) else np.asarray(mask)
         if mask.dtype != bool or mask.shape != (self.num_envs,):
             raise ValueError(f"reset_mask must be a boolean mask of {self.num_envs} entries (one per world), "
                              f"got {mask.dtype} of shape {mask.shape}; for indices use np.isin(range(num_envs), ids)")
@@ -376,23 +407,25 @@ class HumanoidVecEnv(VectorEnv):
 
     def _finish_obs(self, obs: np.ndarray) -> np.ndarray:
         # A diverged world's state may be garbage; keep the batch finite for the learner.
-        obs = obs.astype(np.float32)
-        if not np.isfinite(obs.sum()):
-            obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
+        xp = self.backend.xp
+        obs = self.backend.float32(obs)
+        if not xp.isfinite(obs.sum()):
+            obs = xp.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
         return obs
 
     def _info(self, body: BodyState, obs, terms: dict | None, diverged: np.ndarray, task_info: dict) -> dict[str, Any]:
+        b = self.backend
         info = {f"reward_{k}": v for k, v in (terms or {}).items()}
-        info.update(body_pos=body.pos.astype(np.float32), diverged=diverged,
-                    amp_obs=amp_features(body, proprio=obs[:, :PROPRIO_DIM]).astype(np.float32))
+        info.update(body_pos=b.float32(body.pos), diverged=diverged,
+                    amp_obs=b.float32(amp_features(body, proprio=obs[:, :PROPRIO_DIM])))
         if diverged.any():  # a diverged world's state may be garbage: keep info finite, as obs
             for key in ("body_pos", "amp_obs"):
-                info[key] = np.nan_to_num(info[key], nan=0.0, posinf=0.0, neginf=0.0)
-        lib = self.motion_lib
+                info[key] = b.xp.nan_to_num(info[key], nan=0.0, posinf=0.0, neginf=0.0)
+        lib = self.motion_frames
         if lib is not None:
             # The clip frame each world's pose came from at its last reset (AMP seeds its
             # discriminator history there); reference-following tasks report the current frame.
-            info.update(motion_id=self.start_motion.copy(),
+            info.update(motion_id=b.copy(self.start_motion),
                         motion_time=(self.start_frame - lib.starts[self.start_motion]) * (1.0 / lib.fps))
         info.update(task_info)
         return info
@@ -404,7 +437,7 @@ class HumanoidVecEnv(VectorEnv):
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make")
             return None
         world = self.render_world
-        data = self.sim.datas[world]
+        data = self._render_data(world)
         markers = self._markers(world) if self.show_markers else []
         if self.render_mode == "human":
             return self._render_human(data)
@@ -413,6 +446,17 @@ class HumanoidVecEnv(VectorEnv):
 
             self._renderer = FrameRenderer(self.model, *self.render_size)
         return self._renderer.render(data, markers)
+
+    def _render_data(self, world: int) -> mujoco.MjData:
+        if self.backend.name == "cpu":
+            return self.sim.datas[world]
+        # MuJoCo Warp's state lives on the device: a host copy of this world for the renderer.
+        if getattr(self, "_host_data", None) is None:
+            self._host_data = mujoco.MjData(self.model)
+        d = self._host_data
+        d.qpos[:], d.qvel[:] = (self.backend.to_numpy(x[world]) for x in (self.sim.qpos, self.sim.qvel))
+        mujoco.mj_forward(self.model, d)
+        return d
 
     def _render_human(self, data):
         if self._viewer is None:
@@ -457,11 +501,12 @@ class SingleEnv(gym.Env):
         options = dict(options or {})
         if "motion_id" in options:
             options["motion_ids"] = [options.pop("motion_id")]
-        obs, info = self.vec.reset(options=options)
+        obs, info = self.vec.backend.to_numpy(self.vec.reset(options=options))
         return obs[0], _unbatch(info)
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.vec.step(np.asarray(action)[None])
+        obs, info = self.vec.backend.to_numpy((obs, info))  # the one-world API speaks NumPy
         return obs[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), _unbatch(info)
 
     def render(self):

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import NumpyBackend
+
 # Per env step, the counts shrink by this factor: a memory of ~1,000 steps (a few minutes of
 # training at 64 worlds), long enough to average over many episodes per clip.
 DECAY = 0.999
@@ -24,33 +26,32 @@ DECAY = 0.999
 class FailureWeightedClips:
     """Per-clip failure rates of the episodes an env runs, and the start-clip weights they give."""
 
-    def __init__(self, num_clips: int, share: float, decay: float = DECAY):
+    def __init__(self, num_clips: int, share: float, backend=None, decay: float = DECAY):
         if not 0.0 <= float(share) <= 1.0:
             raise ValueError(f"failure_sampling must be a fraction in [0, 1], got {share!r}")
         self.share, self.decay = float(share), float(decay)
-        self.failures = np.zeros(int(num_clips))
-        self.steps = np.zeros(int(num_clips))
+        self.backend = backend or NumpyBackend()
+        self.failures = self.backend.zeros(int(num_clips))
+        self.steps = self.backend.zeros(int(num_clips))
 
     def record(self, clips: np.ndarray, stepped: np.ndarray | None, failed: np.ndarray) -> None:
         """One env step: `clips` (N,) each world's clip, `stepped` (N,) bool the worlds that took
         a step (None: all), `failed` (N,) bool the worlds whose episode ended in failure."""
-        k = len(self.steps)
+        k, xp = len(self.steps), self.backend.xp
         self.failures *= self.decay
         self.steps *= self.decay
-        if stepped is None:
-            self.steps += np.bincount(clips, minlength=k)
-            self.failures += np.bincount(clips, weights=failed, minlength=k)
-        else:
-            self.steps += np.bincount(clips[stepped], minlength=k)
-            self.failures += np.bincount(clips[stepped], weights=failed[stepped], minlength=k)
+        if stepped is not None:
+            clips, failed = clips[stepped], failed[stepped]
+        self.steps += xp.bincount(clips, minlength=k)
+        self.failures += xp.bincount(clips, weights=failed * 1.0, minlength=k)
 
     def rates(self) -> np.ndarray:
         """(K,) recent failures per step of each clip (0 where it has not been played)."""
-        return np.divide(self.failures, self.steps, out=np.zeros_like(self.failures), where=self.steps > 0)
+        return self.failures / self.steps.clip(min=1e-12)  # 0 / tiny = 0 where a clip is unplayed
 
     def weights(self, base: np.ndarray) -> np.ndarray:
         """(K,) probabilities of drawing each clip for a start, given the library's (`base`)."""
-        rate = self.rates()
+        rate = self.backend.to_numpy(self.rates())  # K numbers: the draw itself stays on the device
         total = rate.sum()
         if self.share == 0.0 or total <= 0.0:
             return base

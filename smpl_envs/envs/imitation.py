@@ -133,6 +133,7 @@ class ImitationVecEnv(HumanoidVecEnv):
     task_layout = {"goal": IMITATION_GOAL_LAYOUT}
     evaluation = ClipProtocol()
     goal = "rotation"
+    backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, motions="walk", reward_weights: dict | None = None,
                  reward_scales: dict | None = None, energy_weight: float = ENERGY_WEIGHT,
@@ -143,9 +144,11 @@ class ImitationVecEnv(HumanoidVecEnv):
         set_tracking_settings(self, reward_weights, reward_scales, energy_weight, termination_distance,
                               action_mode, residual_scale)
         super().__init__(num_envs, motions=motions, **kwargs)
-        self.ref = ReferenceTracker(self.motion_lib, self.num_envs)
+        self.ref = ReferenceTracker(self.motion_frames, self.num_envs, self.backend)
         self.recovery = None
         if recovery is not False:
+            if self.backend.name != "cpu":
+                raise ValueError("recovery=True runs on backend='cpu' only so far")
             if recovery is True:
                 recovery = {}
             if not isinstance(recovery, dict):
@@ -178,7 +181,7 @@ class ImitationVecEnv(HumanoidVecEnv):
         ref = self.ref.current()
         reward, terms = imitation_reward(body, ref, self.sim.actuator_force, self.reward_weights,
                                          self.reward_scales, self.energy_weight)
-        terminated = (np.zeros(self.num_envs, bool) if self.termination_distance is None
+        terminated = (self.backend.zeros(self.num_envs, "bool") if self.termination_distance is None
                       else imitation_terminated(body, ref, self.termination_distance))
         if self.recovery is not None:
             return self.recovery.evaluate(body, ref, reward, terms, terminated, self.ref.at_end(), self.np_random)
@@ -191,14 +194,15 @@ class ImitationVecEnv(HumanoidVecEnv):
         return tracking_obs(body, ref, self.goal, heading)
 
     def _task_info(self, body):
-        info = {"motion_id": self.ref.motion_id.copy(), "motion_time": self.ref.motion_time(),
-                "ref_body_pos": self.ref.current().pos.copy()}  # a copy: the array is cached
+        copy = self.backend.copy
+        info = {"motion_id": copy(self.ref.motion_id), "motion_time": self.ref.motion_time(),
+                "ref_body_pos": copy(self.ref.current().pos)}  # a copy: the array is cached
         if self.recovery is not None:
             info.update(self.recovery.info())
         return info
 
     def _markers(self, world):
-        return [(self.motion_lib.body_pos[self.ref.frame[world]], MARKER_RGBA, 0.03)]
+        return [(self.motion_lib.body_pos[int(self.ref.frame[world])], MARKER_RGBA, 0.03)]
 
     def reference_action(self) -> np.ndarray:
         """(N, 69) actions whose PD targets are the next reference frame's joint angles (in either

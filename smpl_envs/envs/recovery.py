@@ -409,6 +409,7 @@ class RecoveryVecEnv(ImitationVecEnv):
     """
 
     evaluation = RecoveryProtocol()
+    backends = ("cpu",)
 
     def __init__(self, num_envs: int = 1, *, motions="stand", starts=None, switch_distance=SWITCH_DISTANCE,
                  clamp_distance=CLAMP_DISTANCE, point_scale=POINT_SCALE, point_clip=POINT_CLIP,

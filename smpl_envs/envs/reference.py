@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import NumpyBackend
 from ..features import BodyState
 from ..motion.library import MotionLib
 
@@ -34,13 +35,17 @@ def check_action_mode(action_mode: str, residual_scale: float) -> float:
 
 
 class ReferenceTracker:
-    """Per-world reference frames of `lib` for `num_worlds` worlds (arrays of shape (N,))."""
+    """Per-world reference frames of `lib` for `num_worlds` worlds (arrays of shape (N,)).
 
-    def __init__(self, lib: MotionLib, num_worlds: int):
+    `lib` is a MotionLib, or its `DeviceFrames` with the torch `backend` of an env on MuJoCo Warp.
+    """
+
+    def __init__(self, lib: MotionLib, num_worlds: int, backend=None):
         self.lib = lib
-        self.motion_id = np.zeros(num_worlds, np.int64)
-        self.frame = np.zeros(num_worlds, np.int64)      # global frame the simulated state should match
-        self.end_frame = np.zeros(num_worlds, np.int64)  # last frame of each world's clip
+        self.backend = b = backend or NumpyBackend()
+        self.motion_id = b.zeros(num_worlds, "int")
+        self.frame = b.zeros(num_worlds, "int")      # global frame the simulated state should match
+        self.end_frame = b.zeros(num_worlds, "int")  # last frame of each world's clip
         self._cache: list = []
 
     def begin(self, ids: np.ndarray, motion_ids: np.ndarray, frames: np.ndarray) -> None:
@@ -51,16 +56,17 @@ class ReferenceTracker:
 
     def advance(self, active: np.ndarray | None = None) -> None:
         """One frame on, for every world or those in the mask `active`; clips hold their last frame."""
+        xp = self.backend.xp
         if active is None:
-            np.minimum(self.frame + 1, self.end_frame, out=self.frame)
+            xp.minimum(self.frame + 1, self.end_frame, out=self.frame)
         else:
-            self.frame[active] = np.minimum(self.frame[active] + 1, self.end_frame[active])
+            self.frame[active] = xp.minimum(self.frame[active] + 1, self.end_frame[active])
 
     def at_end(self) -> np.ndarray:
         return self.frame >= self.end_frame
 
     def next_frame(self) -> np.ndarray:
-        return np.minimum(self.frame + 1, self.end_frame)
+        return self.backend.xp.minimum(self.frame + 1, self.end_frame)
 
     def motion_time(self) -> np.ndarray:
         return (self.frame - self.lib.starts[self.motion_id]) * (1.0 / self.lib.fps)
@@ -70,10 +76,11 @@ class ReferenceTracker:
         and the next ones (observation), and the next ones become the following step's current
         ones, so the last two lookups are kept: one new lookup per step."""
         for cached_frames, ref in self._cache:
-            if np.array_equal(cached_frames, frames):
+            if bool((cached_frames == frames).all()):
                 return ref
         ref = self.lib.body_state(frames)
-        self._cache = [self._cache[-1], (frames.copy(), ref)] if self._cache else [(frames.copy(), ref)]
+        entry = (self.backend.copy(frames), ref)
+        self._cache = [self._cache[-1], entry] if self._cache else [entry]
         return ref
 
     def current(self) -> BodyState:
@@ -87,11 +94,12 @@ class ReferenceTracker:
         if mode == "absolute":
             return actions * action_scale
         target = self.lib.dof_pos[self.next_frame()] + actions * (residual_scale * action_scale)
-        return np.clip(target, -action_scale, action_scale)
+        return target.clip(-action_scale, action_scale)
 
     def reference_action(self, action_scale: np.ndarray, mode: str) -> np.ndarray:
         """(N, 69) actions whose PD targets are the next reference frame's joint angles: the
         policy-free baseline "track the reference with the PD controllers alone"."""
+        b = self.backend
         if mode == "residual":
-            return np.zeros((len(self.frame), len(action_scale)), np.float32)
-        return np.clip(self.lib.dof_pos[self.next_frame()] / action_scale, -1.0, 1.0).astype(np.float32)
+            return b.float32(b.zeros((len(self.frame), len(action_scale))))
+        return b.float32((self.lib.dof_pos[self.next_frame()] / action_scale).clip(-1.0, 1.0))

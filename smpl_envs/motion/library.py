@@ -21,7 +21,7 @@ from typing import Iterable, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..features import BodyState, amp_features, rotmat_from_quat
+from ..features import BodyState, amp_features, rotmat_from_quat, xp
 from ..humanoid.skeleton import MEAN_SKELETON, NUM_BODIES, NUM_HINGES, PARENTS, Skeleton
 from ..rotations import quat_apply, quat_inv, quat_mul, quat_slerp, yaw_quat
 from .kinematics import Segments
@@ -425,11 +425,35 @@ def _validate(path: Path, meta: dict, arrays: dict[str, np.ndarray]) -> None:
 
 
 def _qpos(f: dict) -> np.ndarray:
-    return np.concatenate([f["body_pos"][:, 0], f["body_quat"][:, 0], f["dof_pos"]], -1)
+    return xp(f["dof_pos"]).concatenate([f["body_pos"][:, 0], f["body_quat"][:, 0], f["dof_pos"]], -1)
 
 
 def _qvel(f: dict) -> np.ndarray:
-    return np.concatenate([f["body_lin_vel"][:, 0], f["root_ang_vel_local"], f["dof_vel"]], -1)
+    return xp(f["dof_vel"]).concatenate([f["body_lin_vel"][:, 0], f["root_ang_vel_local"], f["dof_vel"]], -1)
+
+
+class DeviceFrames:
+    """A MotionLib's per-frame arrays as torch tensors on `device`: what an env on the MuJoCo
+    Warp backend reads every step (exact-frame body states, start states, clip bounds), with the
+    same `body_state` and `qpos_qvel` as the library (one implementation: they only index arrays
+    and call functions written for NumPy and torch alike). Clip names, weights and everything
+    else stay on the host library, `lib`."""
+
+    body_state = MotionLib.body_state
+    qpos_qvel = MotionLib.qpos_qvel
+
+    def __init__(self, lib: MotionLib, device):
+        import torch
+
+        self.lib, self.fps, self.num_motions = lib, lib.fps, lib.num_motions
+        for name in LIB_FIELDS:
+            setattr(self, name, torch.as_tensor(getattr(lib, name), device=device))
+        self.starts = torch.as_tensor(lib.starts, dtype=torch.int64, device=device)
+        self.lengths = torch.as_tensor(lib.lengths, dtype=torch.int64, device=device)
+
+    @property
+    def weights(self) -> np.ndarray:
+        return self.lib.weights  # the host library's, so `lib.set_weights` is seen at once
 
 
 def _derive_chunked(raws: list[RawMotion], skeleton: Skeleton, ground: bool) -> dict[str, np.ndarray]:

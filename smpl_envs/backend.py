@@ -1,0 +1,146 @@
+"""Array backends of the env core: NumPy beside CPU MuJoCo, torch beside MuJoCo Warp.
+
+The task math (`smpl_envs.features`, the reward and termination functions of `smpl_envs.envs`) is
+written once over operators NumPy and torch share, and `features.xp` picks the module from its
+arguments. What an env keeps per world (episode clocks, reference frames, start clips) and the few
+operations where the two libraries differ (allocation, index lists of a mask, copies, random
+draws) go through a backend, so `HumanoidVecEnv` has one code path for both:
+
+| backend | physics | arrays the env returns | floats | random numbers |
+|---|---|---|---|---|
+| `"cpu"` (default) | `CPUSim`, MuJoCo on a thread pool | NumPy | float64 (observations float32) | the env's NumPy generator |
+| `"warp"` | `WarpSim`, MuJoCo Warp on `device` | torch tensors on `device` | float32 | a torch generator on `device`, seeded from the NumPy one |
+
+Why torch for the device path, and not an array-API layer: the agents are torch, so observations,
+rewards and actions stay in one library from the simulator to the optimiser (Warp shares its
+memory with torch without copies), and torch is already a dependency.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+BACKENDS = ("cpu", "warp")
+
+
+class NumpyBackend:
+    """Arrays on the host: NumPy, float64, the env's `np_random`."""
+
+    name = "cpu"
+    xp = np
+    device = None
+
+    def zeros(self, shape, kind: str = "float"):
+        return np.zeros(shape, {"float": np.float64, "int": np.int64, "bool": bool}[kind])
+
+    def asarray(self, x, kind: str = "float"):
+        return np.asarray(x, {"float": np.float64, "int": np.int64, "bool": bool}[kind])
+
+    def float32(self, x):
+        return x.astype(np.float32)
+
+    @staticmethod
+    def nonzero(mask):
+        return np.flatnonzero(mask)
+
+    @staticmethod
+    def copy(x):
+        return x.copy()
+
+    @staticmethod
+    def to_numpy(x):
+        return x
+
+    @staticmethod
+    def rows(x, n: int):
+        """(n, ...) copies of the row `x`."""
+        return x[None].repeat(n, axis=0)
+
+    @staticmethod
+    def uniform(rng: np.random.Generator, n: int):
+        return rng.random(n)
+
+    @staticmethod
+    def choice(rng: np.random.Generator, k: int, n: int, p):
+        return rng.choice(k, size=n, p=p)
+
+
+class TorchBackend:
+    """Arrays on a torch device, float32 (MuJoCo Warp's precision)."""
+
+    name = "warp"
+
+    def __init__(self, device):
+        import torch
+
+        self.xp = torch
+        self.device = torch.device(device)
+        self._dtypes = {"float": torch.float32, "int": torch.int64, "bool": torch.bool}
+        self.rng = torch.Generator(self.device)
+        self._source = None  # the NumPy generator `rng` was last seeded from
+
+    def zeros(self, shape, kind: str = "float"):
+        return self.xp.zeros(shape, dtype=self._dtypes[kind], device=self.device)
+
+    def asarray(self, x, kind: str = "float"):
+        if isinstance(x, np.ndarray) and x.dtype.kind == "f" and kind == "float":
+            x = x.astype(np.float32)  # a float64 array would become a float64 tensor first
+        return self.xp.as_tensor(x, dtype=self._dtypes[kind], device=self.device)
+
+    def float32(self, x):
+        return x.to(self.xp.float32)
+
+    def nonzero(self, mask):
+        return self.xp.nonzero(mask).reshape(-1)
+
+    @staticmethod
+    def copy(x):
+        return x.clone()
+
+    @staticmethod
+    def to_numpy(x):
+        from .sim.warp import to_numpy
+
+        return to_numpy(x)
+
+    @staticmethod
+    def rows(x, n: int):
+        return x[None].repeat(n, *([1] * x.dim()))
+
+    def _generator(self, rng: np.random.Generator):
+        # Seeded from the env's NumPy generator whenever that one is replaced (a seeded reset,
+        # or gym.make's single env handing its own): the same seed gives the same episodes.
+        if rng is not self._source:
+            self.rng.manual_seed(int(rng.integers(2 ** 62)))
+            self._source = rng
+        return self.rng
+
+    def uniform(self, rng: np.random.Generator, n: int):
+        return self.xp.rand(n, generator=self._generator(rng), device=self.device, dtype=self.xp.float64)
+
+    def choice(self, rng: np.random.Generator, k: int, n: int, p):
+        p = self.xp.as_tensor(np.asarray(p) if not isinstance(p, self.xp.Tensor) else p,
+                              dtype=self.xp.float64, device=self.device)
+        return self.xp.multinomial(p, n, replacement=True, generator=self._generator(rng))
+
+
+def make_backend(backend: str, device: Any = None):
+    """The backend named `backend` ("cpu" or "warp"); `device` only for "warp"."""
+    if backend == "cpu":
+        if device not in (None, "cpu"):
+            raise ValueError(f"device={device!r} needs backend='warp' (the CPU backend runs on the host)")
+        return NumpyBackend()
+    if backend == "warp":
+        try:
+            import warp  # noqa: F401
+            import mujoco_warp  # noqa: F401
+        except ImportError as e:
+            raise ImportError(f"backend='warp' needs MuJoCo Warp: pip install 'smpl-envs[gpu]' ({e})") from e
+        import warp as wp
+
+        wp.init()
+        if device is None:
+            device = "cuda" if wp.is_cuda_available() else "cpu"
+        return TorchBackend(device)
+    raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")

@@ -146,6 +146,9 @@ class StyleWindows(RolloutHooks):
 
     def on_reset(self, info: dict) -> None:
         _require_amp_obs(info)
+        if not isinstance(info["amp_obs"], np.ndarray):
+            raise NotImplementedError("AMP keeps its discriminator windows in NumPy: it trains on NumPy envs "
+                                      "(smpl_envs' backend='cpu') so far, not on torch-native ones")
         self.history = self._restart(info, np.arange(len(info["amp_obs"])))
 
     def on_rollout_start(self, buffer: RolloutBuffer) -> None:

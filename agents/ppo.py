@@ -219,6 +219,9 @@ class PPO:
     # ------------------------------------------------------------------ acting
     def _to_env_action(self, a: torch.Tensor) -> np.ndarray:
         # The policy acts in [-1, 1]^d; the env's box can be anything bounded.
+        if self._collector is not None and self._collector.native:  # a torch env: stay on the device
+            low, high = (torch.as_tensor(x, dtype=a.dtype, device=a.device) for x in (self.action_low, self.action_high))
+            return low + 0.5 * (a.clamp(-1.0, 1.0) + 1.0) * (high - low)
         a = a.clamp(-1.0, 1.0).double().cpu().numpy()
         return (self.action_low + 0.5 * (a + 1.0) * (self.action_high - self.action_low)).astype(np.float32)
 

@@ -181,11 +181,22 @@ class RolloutCollector:
         self.last_obs, info = self.env.reset(seed=seed)
         self.hooks.on_reset(info)
         n = self.env.num_envs
-        self.prev_done = np.zeros(n, bool)
-        self.ep_return, self.ep_length = np.zeros(n), np.zeros(n, np.int64)
+        # A torch-native env (smpl_envs' "warp" backend) hands tensors: then nothing of a
+        # rollout leaves the device; a NumPy env's arrays are copied in once per step.
+        self.native = isinstance(self.last_obs, torch.Tensor)
+        self.prev_done = torch.zeros(n, dtype=torch.bool, device=self.device)
+        self.ep_return = torch.zeros(n, dtype=torch.float64, device=self.device)
+        self.ep_length = torch.zeros(n, dtype=torch.int64, device=self.device)
 
     def _tensor(self, x) -> torch.Tensor:
         return torch.as_tensor(x, dtype=torch.float32, device=self.device)
+
+    def _flags(self, x) -> torch.Tensor:
+        return torch.as_tensor(x, dtype=torch.bool, device=self.device)
+
+    def _env_array(self, x: torch.Tensor):
+        """`x` as the env's own kind of array, for the hooks (which read the env's `info`)."""
+        return x if self.native else x.cpu().numpy()
 
     @torch.no_grad()
     def collect(self, buf: RolloutBuffer) -> tuple[torch.Tensor, dict[str, float]]:
@@ -194,7 +205,7 @@ class RolloutCollector:
         term the env reports."""
         if self.last_obs is None:
             raise RuntimeError("call reset() before collect()")
-        env, pol, dev = self.env, self.policy, self.device
+        env, pol = self.env, self.policy
         N = env.num_envs
         buf.reset()
         self.hooks.on_rollout_start(buf)
@@ -203,7 +214,7 @@ class RolloutCollector:
             # NextStep autoreset: the step after an episode's end only resets; it is no transition.
             valid = ~self.prev_done
             obs = self._tensor(self.last_obs)
-            pol.update_obs_stats(obs[torch.as_tensor(valid, device=dev)])
+            pol.update_obs_stats(obs[valid])
             nobs = pol.normalize(obs)
             dist = pol.action_distribution(nobs)
             action = dist.sample()
@@ -211,30 +222,32 @@ class RolloutCollector:
             buf.log_probs[t] = dist.log_prob(action).sum(-1)
 
             next_obs, reward, terminated, truncated, info = env.step(self.to_env_action(action))
-            terminated, truncated = np.asarray(terminated, bool), np.asarray(truncated, bool)
+            terminated, truncated = self._flags(terminated), self._flags(truncated)
             done = terminated | truncated
-            reward = np.where(valid, np.asarray(reward, np.float64), 0.0)
+            reward = torch.where(valid, torch.as_tensor(reward, device=self.device).double(), 0.0)
+            done_env, valid_env = self._env_array(done), self._env_array(valid)
             # A time limit is not a failure: keep the value of where the episode stopped.
             cut = truncated & ~terminated & valid
             if cut.any():
-                final = final_observations(next_obs, info, done, self.autoreset)[cut]
-                buf.bootstrap[t, torch.as_tensor(cut, device=dev)] = pol.value(pol.normalize(self._tensor(final)))
-            buf.rewards[t] = self._tensor(reward)
-            buf.dones[t] = self._tensor(done)
-            buf.valid[t] = self._tensor(valid)
-            self.hooks.on_step(t, info, done, valid)
-            for k, v in reward_terms(info, valid).items():
+                final = self._tensor(final_observations(next_obs, info, done_env, self.autoreset))[cut]
+                buf.bootstrap[t, cut] = pol.value(pol.normalize(final))
+            buf.rewards[t] = reward
+            buf.dones[t] = done
+            buf.valid[t] = valid
+            self.hooks.on_step(t, info, done_env, valid_env)
+            for k, v in reward_terms(info, valid_env).items():
                 terms_sum[k] = terms_sum.get(k, 0.0) + v
 
             self.ep_return += reward
             self.ep_length += valid
-            for i in np.flatnonzero(done & valid):
-                self.episodes.append((self.ep_return[i], self.ep_length[i]))
+            ended = done & valid
+            if ended.any():
+                self.episodes.extend(zip(self.ep_return[ended].tolist(), self.ep_length[ended].tolist()))
             self.ep_return[done] = 0.0
             self.ep_length[done] = 0
-            self.prev_done = done if self.autoreset == AutoresetMode.NEXT_STEP else np.zeros(N, bool)
+            self.prev_done = done if self.autoreset == AutoresetMode.NEXT_STEP else torch.zeros_like(done)
             self.last_obs = next_obs
-            if not np.isfinite(next_obs).all():
+            if not bool(torch.isfinite(torch.as_tensor(next_obs)).all()):
                 raise FloatingPointError("the env returned a non-finite observation; the simulation diverged "
                                          "without ending its episode")
 
@@ -242,7 +255,7 @@ class RolloutCollector:
             flat = torch.cat([buf.obs.reshape(-1, buf.obs.shape[-1]), pol.normalize(self._tensor(self.last_obs))])
             values = pol.value(flat)
         buf.values.copy_(values[:-N].reshape(buf.n_steps, N))
-        return values[-N:], {k: s / buf.n_steps for k, s in terms_sum.items()}
+        return values[-N:], {k: float(s) / buf.n_steps for k, s in terms_sum.items()}
 
 
 @contextlib.contextmanager

@@ -55,6 +55,10 @@ def final_observations(obs: np.ndarray, info: dict, done: np.ndarray, mode: Auto
     reset (SameStep puts those in info["final_obs"]; NextStep returns them as `obs`)."""
     if mode != AutoresetMode.SAME_STEP or not done.any():
         return obs
+    if not isinstance(obs, np.ndarray):  # a torch-native vector env: one batched array
+        import torch
+
+        return torch.where((done & info.get("_final_obs", done))[:, None], info["final_obs"], obs)
     out = obs.copy()
     for i in np.flatnonzero(done & info.get("_final_obs", done)):
         out[i] = info["final_obs"][i]
@@ -79,7 +83,15 @@ def final_info_array(info: dict, key: str, done: np.ndarray, mode: AutoresetMode
 
 
 def reward_terms(info: dict, valid: np.ndarray) -> dict[str, float]:
-    """Means over valid worlds of every scalar `reward_*` entry the env reports in `info`."""
+    """Means over valid worlds of every scalar `reward_*` entry the env reports in `info`
+    (0-d tensors, left on the device, for a torch-native env)."""
+    if not isinstance(valid, np.ndarray):
+        out = {}
+        for k, v in info.items():
+            mask = valid & info.get("_" + k, valid)
+            if k.startswith("reward_") and v.shape == valid.shape:
+                out[k[len("reward_"):]] = v.double().where(mask, 0.0).sum() / mask.sum().clip(min=1)
+        return out
     out = {}
     for k, v in info.items():
         if not k.startswith("reward_"):

@@ -89,7 +89,9 @@ class TorchBackend:
         return self.xp.as_tensor(x, dtype=self._dtypes[kind], device=self.device)
 
     def float32(self, x):
-        return x.to(self.xp.float32)
+        # Always a new tensor, as NumPy's astype: a float32 view of the simulator's state would
+        # change under the caller at the next step.
+        return x.to(self.xp.float32, copy=True)
 
     def nonzero(self, mask):
         return self.xp.nonzero(mask).reshape(-1)

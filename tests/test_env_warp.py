@@ -1,0 +1,191 @@
+"""Tasks on the MuJoCo Warp backend (`gym.make_vec(id, backend="warp", device=...)`), run on
+Warp's CPU device: torch-native outputs, parity with the CPU backend, seeding, divergence
+isolation, partial resets, both autoreset modes, the env checker through `gym.make`, PPO with its
+rollout kept in torch, and a clear error for the tasks not ported yet.
+
+Parity tolerance: the env on MuJoCo Warp computes in float32, the CPU one in float64 (physics and
+task math). From the walk clip's first frame with small actions, observations agree to ~1e-5 for
+the first steps and ~1e-4 after 10 (measured); the test allows 1e-3 and 1e-2 (a foot contact that
+starts within float32 rounding of zero distance makes one world drift faster; `test_sim_warp`).
+"""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco_warp", reason="MuJoCo Warp is not installed (pip install 'smpl-envs[gpu]')")
+torch = pytest.importorskip("torch")
+
+import gymnasium as gym  # noqa: E402
+
+from conftest import check_env_quietly  # noqa: E402
+
+N = 4
+BEGIN = {"motion_ids": [0] * N, "start": "beginning"}
+
+
+def make(env_id="SMPL/Imitation-v0", backend="warp", **kw):
+    kw = {"motions": "walk", "action_mode": "residual", **kw}
+    if backend == "warp":
+        kw["device"] = "cpu"
+    else:
+        kw["num_threads"] = 1
+    return gym.make_vec(env_id, num_envs=kw.pop("num_envs", N), backend=backend, **kw)
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = make()
+    yield e
+    e.close()
+
+
+@pytest.mark.parametrize("env_id", ["SMPL/Imitation-v0", "SMPL/KeypointImitation-v0"])
+def test_parity_with_the_cpu_backend(env_id):
+    w, c = make(env_id), make(env_id, backend="cpu")
+    ow, _ = w.reset(seed=0, options=BEGIN)
+    oc, _ = c.reset(seed=0, options=BEGIN)
+    assert np.abs(ow.numpy() - oc).max() < 1e-4
+    rng = np.random.default_rng(0)
+    for k in range(10):
+        a = rng.uniform(-0.3, 0.3, (N, 69)).astype(np.float32)
+        ow, rw, tw, uw, iw = w.step(torch.as_tensor(a))
+        oc, rc, tc, uc, ic = c.step(a)
+        tol = 1e-3 if k < 3 else 1e-2
+        assert np.abs(ow.numpy() - oc).max() < tol, k
+        assert np.abs(rw.numpy() - rc).max() < tol, k
+        assert tw.tolist() == tc.tolist() and uw.tolist() == uc.tolist()
+        for key in ("body_pos", "ref_body_pos", "reward_pos", "amp_obs"):
+            assert np.abs(iw[key].numpy() - ic[key]).max() < 10 * tol, key
+        np.testing.assert_array_equal(iw["motion_id"].numpy(), ic["motion_id"])
+        np.testing.assert_allclose(iw["motion_time"].numpy(), ic["motion_time"], atol=1e-6)
+    w.close()
+    c.close()
+
+
+def test_outputs_are_torch_tensors_on_the_device(env):
+    obs, info = env.reset(seed=1)
+    assert isinstance(obs, torch.Tensor) and obs.dtype == torch.float32 and obs.shape == (N, 934)
+    assert env.metadata["backend"] == "warp" and env.metadata["device"] == "cpu"
+    obs, reward, terminated, truncated, info = env.step(torch.zeros(N, 69))
+    assert reward.dtype == torch.float32 and reward.shape == (N,)
+    assert terminated.dtype == torch.bool and truncated.dtype == torch.bool
+    assert all(isinstance(v, torch.Tensor) for v in info.values())
+    # NumPy actions are accepted too.
+    assert isinstance(env.step(np.zeros((N, 69), np.float32))[0], torch.Tensor)
+
+
+def test_zero_residual_action_gives_the_reference_pd_targets(env):
+    env.reset(seed=2)
+    ref = env.unwrapped.reference_action() if hasattr(env, "unwrapped") else env.reference_action()
+    assert isinstance(ref, torch.Tensor) and torch.equal(ref, torch.zeros(N, 69))
+    targets = env._ctrl(torch.zeros(N, 69))
+    expected = env.motion_frames.dof_pos[env.ref.next_frame()]
+    assert torch.allclose(targets, expected.clip(-env.action_scale, env.action_scale))
+
+
+def test_same_seed_same_episodes_and_different_seeds_differ(env):
+    def run(seed):
+        obs, _ = env.reset(seed=seed)
+        out = [obs.clone()]
+        g = torch.Generator().manual_seed(0)
+        for _ in range(5):
+            out.append(env.step(torch.rand(N, 69, generator=g) * 0.6 - 0.3)[0].clone())
+        return torch.stack(out)
+
+    a, b, c = run(5), run(5), run(6)
+    assert torch.equal(a, b)
+    assert not torch.allclose(a, c)
+
+
+def test_nan_action_ends_only_that_world(env):
+    env.reset(seed=3, options=BEGIN)
+    a = torch.zeros(N, 69)
+    a[1, 4] = float("nan")
+    obs, reward, terminated, truncated, info = env.step(a)
+    assert terminated.tolist() == [False, True, False, False]
+    assert info["diverged"].tolist() == [False, True, False, False]
+    assert torch.isfinite(obs).all() and reward[1] == 0
+    # NextStep: the world restarts on the next step, the others carry on untouched.
+    elapsed = env.elapsed.clone()
+    env.step(torch.zeros(N, 69))
+    assert env.elapsed.tolist() == [int(elapsed[0]) + 1, 0, int(elapsed[2]) + 1, int(elapsed[3]) + 1]
+
+
+def test_reset_mask_resets_only_the_masked_worlds(env):
+    env.reset(seed=4, options=BEGIN)
+    for _ in range(3):
+        env.step(torch.zeros(N, 69))
+    before = env.sim.qpos.clone()
+    obs, info = env.reset(options={"reset_mask": np.array([False, True, False, True])})
+    assert info["_reset"].tolist() == [False, True, False, True]
+    assert torch.equal(env.sim.qpos[[0, 2]], before[[0, 2]])
+    assert not torch.equal(env.sim.qpos[[1, 3]], before[[1, 3]])
+    assert env.elapsed.tolist() == [3, 0, 3, 0]
+    with pytest.raises(ValueError, match="reset_mask"):
+        env.reset(options={"reset_mask": np.array([1, 0, 1, 0])})
+
+
+def test_same_step_autoreset_reports_final_observations():
+    e = make(autoreset_mode="SameStep", termination_distance=0.05, num_envs=2)
+    e.reset(seed=0)
+    for _ in range(30):
+        obs, reward, terminated, truncated, info = e.step(torch.ones(2, 69))
+        if terminated.any():
+            break
+    assert terminated.any()
+    assert torch.equal(info["_final_obs"], terminated | truncated)
+    assert info["final_obs"].shape == obs.shape
+    assert e.elapsed[terminated].eq(0).all()  # reset within the step
+    e.close()
+
+
+def test_env_checker_through_gym_make():
+    # From the clip's first frame: the checker fails an env that truncates after one step, and
+    # its seed 123 happens to draw the walk clip's last-but-one frame on this backend.
+    env = gym.make("SMPL/Imitation-v0", motions="walk", backend="warp", device="cpu", start="beginning")
+    check_env_quietly(env)
+    obs, info = env.reset(seed=0)
+    assert isinstance(obs, np.ndarray) and obs.dtype == np.float32  # the one-world API speaks NumPy
+    frame = gym.make("SMPL/Imitation-v0", motions="walk", backend="warp", device="cpu",
+                     render_mode="rgb_array", render_size=(64, 48))
+    frame.reset(seed=0)
+    assert frame.render().shape == (48, 64, 3)
+    env.close()
+    frame.close()
+
+
+def test_failure_sampling_on_the_device():
+    e = make(motions=["stand", "run"], failure_sampling=0.8, termination_distance=0.3, num_envs=8)
+    e.reset(seed=0)
+    for _ in range(40):
+        e.step(torch.zeros(8, 69))
+    rates = e.clip_sampler.rates()
+    assert isinstance(rates, torch.Tensor) and rates[1] > rates[0]
+    e.close()
+
+
+def test_ppo_keeps_its_rollout_in_torch(env):
+    from agents import PPO
+
+    model = PPO(env, n_steps=8, batch_size=16, n_epochs=1, seed=0, verbose=0, tensorboard=False, device="cpu",
+                actor_hidden=[32], critic_hidden=[32])
+    model.learn(8 * N * 2, progress_bar=False)
+    assert model.num_timesteps == 64 and model._collector.native
+    action = model._to_env_action(torch.zeros(N, 69))
+    assert isinstance(action, torch.Tensor)
+    assert torch.isfinite(model.rollout_buffer.values).all()
+
+
+@pytest.mark.parametrize("env_id", ["SMPL/Speed-v0", "SMPL/Recovery-v0", "SMPL/VRTracking-v0"])
+def test_tasks_not_ported_refuse_the_warp_backend_by_name(env_id):
+    with pytest.raises(ValueError, match="backend"):
+        gym.make_vec(env_id, num_envs=1, backend="warp", device="cpu")
+
+
+def test_unknown_backend_and_device_errors():
+    with pytest.raises(ValueError, match="backend"):
+        gym.make_vec("SMPL/Imitation-v0", num_envs=1, backend="jax")
+    with pytest.raises(ValueError, match="device"):
+        gym.make_vec("SMPL/Imitation-v0", num_envs=1, device="cuda")
+    with pytest.raises(ValueError, match="recovery"):
+        gym.make_vec("SMPL/Imitation-v0", num_envs=1, backend="warp", device="cpu", recovery=True)

@@ -269,7 +269,8 @@ def evaluate(policy: Callable, env="SMPL/Imitation-v0", *, motions=None, num_env
     env: a registered task id (an env of at most `num_envs` worlds is made with `motions` and
         `env_kwargs`, and closed afterwards), or an existing suite vec env made with
         autoreset_mode="Disabled" (imitation also: termination_distance=None, no
-        max_episode_steps); it is reset with the protocol's seed.
+        max_episode_steps); it is reset with the protocol's seed. An env on the "warp"
+        backend (env_kwargs backend="warp") is read through `wrappers.NumpyVecEnv`.
     options: the protocol's own (imitation: threshold=0.5; episode tasks: episodes=32, seed=0).
     """
     protocol = protocol_for(env)
@@ -282,6 +283,10 @@ def evaluate(policy: Callable, env="SMPL/Imitation-v0", *, motions=None, num_env
     elif motions is not None or env_kwargs is not None:
         raise ValueError("motions and env_kwargs are only for an env id; an existing env is "
                          "evaluated as it was made")
+    if getattr(env, "metadata", {}).get("backend", "cpu") != "cpu":
+        from .wrappers import NumpyVecEnv  # the protocols count in NumPy; the physics stays on the device
+
+        env = NumpyVecEnv(env)
     try:
         protocol.check_env(env)
         return protocol.run(policy, env, options, progress)

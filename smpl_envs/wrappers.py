@@ -16,6 +16,13 @@ SB3 requires and which the native env is not::
 
 Stable-Baselines3 is an optional dependency: this module imports without it, and only using
 `SB3VecEnv` needs it (it is built on first access, so importing this module stays light).
+
+`NumpyVecEnv` is the NumPy view of a torch-native env (`backend="warp"`): actions in as NumPy
+(or tensors), observations, rewards, flags and `info` out as NumPy, for code written against
+NumPy (the evaluation protocols, other libraries). The data crosses from the device every step,
+so training loops that can take tensors should use the env itself::
+
+    env = NumpyVecEnv(gym.make_vec("SMPL/Imitation-v0", num_envs=1024, backend="warp", device="cuda"))
 """
 from __future__ import annotations
 
@@ -25,7 +32,31 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-__all__ = ["SB3VecEnv"]
+__all__ = ["SB3VecEnv", "NumpyVecEnv"]
+
+
+def _numpy(x):
+    if isinstance(x, dict):
+        return {k: _numpy(v) for k, v in x.items()}
+    if isinstance(x, (tuple, list)):
+        return type(x)(_numpy(v) for v in x)
+    return x.detach().cpu().numpy() if hasattr(x, "detach") else x
+
+
+class NumpyVecEnv(gym.vector.VectorWrapper):
+    """A torch-native vector env seen through NumPy (its arrays copied to the host each call);
+    on a NumPy env it changes nothing. Attributes and methods of the env read through."""
+
+    def reset(self, *, seed=None, options=None):
+        return _numpy(self.env.reset(seed=seed, options=options))
+
+    def step(self, actions):
+        return _numpy(self.env.step(actions))
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.env, name)
 
 # Keys of a SameStep info dict that describe the finished episode rather than the current one.
 _FINAL_KEYS = ("final_obs", "final_info")

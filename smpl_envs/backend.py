@@ -11,6 +11,15 @@ draws) go through a backend, so `HumanoidVecEnv` has one code path for both:
 | `"cpu"` (default) | `CPUSim`, MuJoCo on a thread pool | NumPy | float64 (observations float32) | the env's NumPy generator |
 | `"warp"` | `WarpSim`, MuJoCo Warp on `device` | torch tensors on `device` | float32 | a torch generator on `device`, seeded from the NumPy one |
 
+Porting a task to the torch backend: per-world state from `backend.zeros / full / asarray`;
+`xp = backend.xp` for module functions (`xp.where`, `xp.stack`, `xp.concatenate`, `xp.cos`,
+`xp.minimum` of two arrays); methods both share (`.clip`, `.sum(axis=)`, `.any(axis=)`,
+`.reshape`, `.swapaxes`); `backend.copy` for `.copy()`, `backend.float32` for
+`.astype(np.float32)`, `backend.nonzero` for `np.flatnonzero`, `backend.rows` for `np.tile` of a
+row; `xp.amax(x, axis)` (not `.max`, which is a pair in torch); random draws through the backend
+with the env's `np_random` (`uniform`, `integers`, `normal`, `choice`). Constants may stay NumPy
+where they only index or scale (torch converts them); a table used in arithmetic is converted once.
+
 Why torch for the device path, and not an array-API layer: the agents are torch, so observations,
 rewards and actions stay in one library from the simulator to the optimiser (Warp shares its
 memory with torch without copies), and torch is already a dependency.
@@ -58,8 +67,28 @@ class NumpyBackend:
         return x[None].repeat(n, axis=0)
 
     @staticmethod
-    def uniform(rng: np.random.Generator, n: int):
-        return rng.random(n)
+    def full(shape, value):
+        return np.full(shape, value, dtype=np.float64)
+
+    @staticmethod
+    def arange(n: int):
+        return np.arange(n)
+
+    # Random draws take the env's generator (`self.np_random`); the NumPy backend makes exactly
+    # the generator calls the tasks made before backends existed, so seeded episodes are unchanged.
+    @staticmethod
+    def uniform(rng: np.random.Generator, size, low: float | None = None, high: float | None = None):
+        """U[0, 1) (`rng.random`) or U[low, high) (`rng.uniform`) of shape `size`."""
+        return rng.random(size) if low is None else rng.uniform(low, high, size)
+
+    @staticmethod
+    def integers(rng: np.random.Generator, low: int, high: int, size):
+        """Integers in [low, high)."""
+        return rng.integers(low, high, size)
+
+    @staticmethod
+    def normal(rng: np.random.Generator, size, scale: float = 1.0):
+        return rng.normal(0.0, scale, size)
 
     @staticmethod
     def choice(rng: np.random.Generator, k: int, n: int, p):
@@ -118,8 +147,25 @@ class TorchBackend:
             self._source = rng
         return self.rng
 
-    def uniform(self, rng: np.random.Generator, n: int):
-        return self.xp.rand(n, generator=self._generator(rng), device=self.device, dtype=self.xp.float64)
+    def full(self, shape, value):
+        return self.xp.full(shape if isinstance(shape, tuple) else (shape,), float(value), dtype=self.xp.float32,
+                            device=self.device)
+
+    def arange(self, n: int):
+        return self.xp.arange(n, device=self.device)
+
+    def uniform(self, rng: np.random.Generator, size, low: float | None = None, high: float | None = None):
+        size = size if isinstance(size, tuple) else (int(size),)
+        u = self.xp.rand(size, generator=self._generator(rng), device=self.device, dtype=self.xp.float64)
+        return u if low is None else low + (high - low) * u
+
+    def integers(self, rng: np.random.Generator, low: int, high: int, size):
+        size = size if isinstance(size, tuple) else (int(size),)
+        return self.xp.randint(int(low), int(high), size, generator=self._generator(rng), device=self.device)
+
+    def normal(self, rng: np.random.Generator, size, scale: float = 1.0):
+        size = size if isinstance(size, tuple) else (int(size),)
+        return scale * self.xp.randn(size, generator=self._generator(rng), device=self.device, dtype=self.xp.float64)
 
     def choice(self, rng: np.random.Generator, k: int, n: int, p):
         p = self.xp.as_tensor(np.asarray(p) if not isinstance(p, self.xp.Tensor) else p,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import NumpyBackend
 from ..features import heading_rotation, rotmat_from_quat
 from .base import HumanoidVecEnv, fallen
 
@@ -31,19 +32,20 @@ def check_interval(name: str, value) -> tuple[int, int]:
 class Schedule:
     """Per-world step at which the task next resamples its target, U[low, high] steps apart."""
 
-    def __init__(self, num_worlds: int, interval: tuple[int, int]):
+    def __init__(self, num_worlds: int, interval: tuple[int, int], backend=None):
         self.low, self.high = interval
-        self.next = np.zeros(num_worlds, np.int64)
+        self.backend = backend or NumpyBackend()
+        self.next = self.backend.zeros(num_worlds, "int")
 
     def reset(self, ids: np.ndarray, elapsed: np.ndarray, rng: np.random.Generator) -> None:
-        self.next[ids] = elapsed[ids] + rng.integers(self.low, self.high + 1, len(ids))
+        self.next[ids] = elapsed[ids] + self.backend.integers(rng, self.low, self.high + 1, len(ids))
 
     def due(self, elapsed: np.ndarray, active: np.ndarray | None) -> np.ndarray:
         """World ids whose resample is due now (among `active` ones)."""
         due = elapsed >= self.next
         if active is not None:
             due &= active
-        return np.flatnonzero(due)
+        return self.backend.nonzero(due)
 
 
 class GoalVecEnv(HumanoidVecEnv):

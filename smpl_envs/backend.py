@@ -155,9 +155,11 @@ class TorchBackend:
         return self.xp.arange(n, device=self.device)
 
     def uniform(self, rng: np.random.Generator, size, low: float | None = None, high: float | None = None):
+        # U[0, 1) in float64 (it picks frames of libraries longer than float32 counts exactly);
+        # ranged draws in the env's float32, as they go into its per-world state.
         size = size if isinstance(size, tuple) else (int(size),)
         u = self.xp.rand(size, generator=self._generator(rng), device=self.device, dtype=self.xp.float64)
-        return u if low is None else low + (high - low) * u
+        return u if low is None else (low + (high - low) * u).to(self.xp.float32)
 
     def integers(self, rng: np.random.Generator, low: int, high: int, size):
         size = size if isinstance(size, tuple) else (int(size),)
@@ -165,7 +167,7 @@ class TorchBackend:
 
     def normal(self, rng: np.random.Generator, size, scale: float = 1.0):
         size = size if isinstance(size, tuple) else (int(size),)
-        return scale * self.xp.randn(size, generator=self._generator(rng), device=self.device, dtype=self.xp.float64)
+        return scale * self.xp.randn(size, generator=self._generator(rng), device=self.device, dtype=self.xp.float32)
 
     def choice(self, rng: np.random.Generator, k: int, n: int, p):
         p = self.xp.as_tensor(np.asarray(p) if not isinstance(p, self.xp.Tensor) else p,

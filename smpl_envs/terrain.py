@@ -1,5 +1,6 @@
 """Procedural terrain for `SMPL/Terrain-v0`: a seeded height grid in pure NumPy (REFERENCE.md
-section 8, PULSE's pedestrian terrain), and batched height lookups into it.
+section 8, PULSE's pedestrian terrain), and batched height lookups into it (`lookup`: NumPy arrays
+or torch tensors).
 
 The terrain is a grid of `size` = (rows, columns) square tiles of `tile_size` m (20 m), surrounded
 by a flat border, sampled every `SPACING` = 0.1 m and rounded to 0.005 m. Each tile has a type and
@@ -31,6 +32,8 @@ from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
+
+from .features import xp
 
 SPACING = 0.1            # m between height samples (REFERENCE section 8)
 VERTICAL_STEP = 0.005    # m: heights are rounded to this
@@ -181,24 +184,33 @@ class Terrain:
         return lookup(self.heights, xy, self.x0, self.y0, mode)
 
 
-def lookup(grid: np.ndarray, xy, x0: float, y0: float, mode: str = "bilinear") -> np.ndarray:
+def lookup(grid, xy, x0: float, y0: float, mode: str = "bilinear"):
     """Batched reads of `grid` (ny, nx), sampled every SPACING from (x0, y0), at points xy (..., 2):
-    four gathers from the flat array, no loop over points."""
+    four gathers from the flat array, no loop over points. NumPy arrays, or torch tensors (grid
+    and points on one device: the terrain task's warp backend)."""
     ny, nx = grid.shape
-    u = np.clip((xy[..., 0] - x0) * (1.0 / SPACING), 0.0, nx - 1.000001)
-    v = np.clip((xy[..., 1] - y0) * (1.0 / SPACING), 0.0, ny - 1.000001)
-    j, i = u.astype(np.int64), v.astype(np.int64)
-    flat = grid.ravel()
+    u = ((xy[..., 0] - x0) * (1.0 / SPACING)).clip(0.0, nx - 1.000001)
+    v = ((xy[..., 1] - y0) * (1.0 / SPACING)).clip(0.0, ny - 1.000001)
+    # Cells clamped inside the grid: in float32 the bound above rounds up to the last sample.
+    j, i = cell_index(u).clip(max=nx - 2), cell_index(v).clip(max=ny - 2)
+    flat = grid.reshape(-1)
     k = i * nx + j
     h00, h01, h10, h11 = flat[k], flat[k + 1], flat[k + nx], flat[k + nx + 1]
     if mode == "bilinear":
         fu, fv = u - j, v - i
         return (h00 + fu * (h01 - h00)) + fv * ((h10 + fu * (h11 - h10)) - (h00 + fu * (h01 - h00)))
+    m = xp(h00)
     if mode == "min":
-        return np.minimum(np.minimum(h00, h01), np.minimum(h10, h11))
+        return m.minimum(m.minimum(h00, h01), m.minimum(h10, h11))
     if mode == "max":
-        return np.maximum(np.maximum(h00, h01), np.maximum(h10, h11))
+        return m.maximum(m.maximum(h00, h01), m.maximum(h10, h11))
     raise ValueError(f"mode must be 'bilinear', 'min' or 'max', got {mode!r}")
+
+
+def cell_index(x):
+    """Integer parts (int64) of non-negative floats (cell indices), NumPy or torch."""
+    m = xp(x)
+    return x.astype(np.int64) if m is np else x.to(m.int64)
 
 
 def max_filter(grid: np.ndarray, radius: int) -> np.ndarray:

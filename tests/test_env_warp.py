@@ -17,6 +17,8 @@ torch = pytest.importorskip("torch")
 
 import gymnasium as gym  # noqa: E402
 
+import smpl_envs  # noqa: E402
+
 from conftest import check_env_quietly  # noqa: E402
 
 N = 4
@@ -176,10 +178,55 @@ def test_ppo_keeps_its_rollout_in_torch(env):
     assert torch.isfinite(model.rollout_buffer.values).all()
 
 
-@pytest.mark.parametrize("env_id", ["SMPL/Speed-v0", "SMPL/Recovery-v0", "SMPL/VRTracking-v0"])
-def test_tasks_not_ported_refuse_the_warp_backend_by_name(env_id):
-    with pytest.raises(ValueError, match="backend"):
-        gym.make_vec(env_id, num_envs=1, backend="warp", device="cpu")
+GOAL_TASKS = {"SMPL/Speed-v0": ("target_dir", "target_speed"), "SMPL/Reach-v0": ("target", "target_index"),
+              "SMPL/Strike-v0": ()}
+
+
+@pytest.mark.parametrize("env_id", sorted(GOAL_TASKS))
+def test_goal_task_parity_with_the_cpu_backend(env_id):
+    """The two backends draw different random targets: the warp env is put into the CPU env's
+    state after reset (the whole model's qpos / qvel, the task's targets and schedule), then both
+    take the same actions. The humanoids start 0.5 m above the floor: this checks the task code
+    (targets, observations, rewards, info), and foot contacts make float32 and float64 physics
+    part within a step or two (`test_sim_warp`)."""
+    kw = {"max_episode_steps": 300}
+    w = gym.make_vec(env_id, num_envs=N, backend="warp", device="cpu", **kw)
+    c = gym.make_vec(env_id, num_envs=N, num_threads=1, **kw)
+    w.reset(seed=0)
+    c.reset(seed=0)
+    qpos = c.sim.qpos.copy()
+    qpos[:, c.humanoid.qpos.start + 2] += 0.5
+    c.sim.set_state(np.arange(N), qpos, c.sim.qvel.copy())
+    w.sim.set_state(np.arange(N), qpos, c.sim.qvel)
+    for name in GOAL_TASKS[env_id]:
+        getattr(w, name)[:] = torch.as_tensor(getattr(c, name))
+    if hasattr(c, "schedule"):
+        w.schedule.next[:] = torch.as_tensor(c.schedule.next)
+    rng = np.random.default_rng(1)
+    for k in range(6):
+        a = rng.uniform(-0.05, 0.05, (N, 69)).astype(np.float32)  # absolute PD targets: +-9 degrees
+        ow, rw, tw, uw, iw = w.step(torch.as_tensor(a))
+        oc, rc, tc, uc, ic = c.step(a)
+        assert isinstance(ow, torch.Tensor) and ow.shape == oc.shape
+        tol = 1e-3
+        assert np.abs(ow.numpy() - oc).max() < tol, k
+        assert np.abs(rw.numpy() - rc).max() < tol, k
+        assert tw.tolist() == tc.tolist()
+        for key, value in ic.items():
+            if key.startswith("reward_") or key in ("speed_error", "hand_distance", "box_up", "box_pos"):
+                assert np.abs(iw[key].numpy() - value).max() < 10 * tol, key
+    w.close()
+    c.close()
+
+
+def test_a_task_without_the_warp_backend_refuses_it_by_name():
+    from smpl_envs.envs.base import HumanoidVecEnv
+
+    class NumpyOnly(HumanoidVecEnv):  # a third-party task written in NumPy: backends defaults to ("cpu",)
+        pass
+
+    with pytest.raises(ValueError, match="NumpyOnly runs on backend 'cpu'"):
+        NumpyOnly(1, backend="warp", device="cpu")
 
 
 def test_unknown_backend_and_device_errors():
@@ -187,13 +234,9 @@ def test_unknown_backend_and_device_errors():
         gym.make_vec("SMPL/Imitation-v0", num_envs=1, backend="jax")
     with pytest.raises(ValueError, match="device"):
         gym.make_vec("SMPL/Imitation-v0", num_envs=1, device="cuda")
-    with pytest.raises(ValueError, match="recovery"):
-        gym.make_vec("SMPL/Imitation-v0", num_envs=1, backend="warp", device="cpu", recovery=True)
 
 
 def test_evaluation_protocol_runs_on_the_warp_backend():
-    import smpl_envs
-
     def zero(obs):
         return np.zeros((len(obs), 69), np.float32)
 
@@ -223,3 +266,24 @@ def test_the_warp_benchmark_runs(tmp_path):
     assert "| worlds |" in out.stdout and "PPO samples/s" in out.stdout
     row = json.loads((tmp_path / "b.json").read_text())["rows"][0]
     assert row["worlds"] == 2 and row["task_steps_per_s"] > 0 and row["ppo_samples_per_s"] > 0
+
+
+@pytest.mark.parametrize("env_id", sorted(smpl_envs.ENV_IDS))
+def test_every_task_runs_on_the_warp_backend(env_id):
+    """make_vec on the backend, torch outputs of the CPU env's shapes, NaN isolation, and the env
+    checker through gym.make (from a clip's first frame where the task has clips: see above)."""
+    kw = {"terrain_size": (2, 2), "tile_size": 6.0} if env_id == "SMPL/Terrain-v0" else {}
+    env = gym.make_vec(env_id, num_envs=2, backend="warp", device="cpu", **kw)
+    cpu = gym.make_vec(env_id, num_envs=2, num_threads=1, **kw)
+    obs, info = env.reset(seed=0)
+    assert isinstance(obs, torch.Tensor) and obs.shape == cpu.reset(seed=0)[0].shape
+    a = torch.zeros(2, 69)
+    a[0, 0] = float("nan")
+    obs, reward, terminated, truncated, info = env.step(a)
+    assert bool(info["diverged"][0]) and not bool(info["diverged"][1]) and bool(terminated[0])
+    assert torch.isfinite(obs).all() and reward.dtype == torch.float32
+    env.close()
+    cpu.close()
+    single = gym.make(env_id, backend="warp", device="cpu", start="beginning", **kw)
+    check_env_quietly(single)
+    single.close()

@@ -1,8 +1,11 @@
 """SMPL/Recovery-v0 and Imitation's recovery option: Gymnasium contracts, fallen and far starts,
 the start mix, the recovery goal form and its switch, the point reward, termination rules,
 the reference held past the clip's end, the recovery metrics on hand-made trajectories, the
-evaluation protocol, and bad input."""
+evaluation protocol, bad input, and the MuJoCo Warp backend (parity with the CPU one, starts
+and outputs in torch, Imitation's recovery option)."""
 
+
+import importlib.util
 
 import gymnasium as gym
 import numpy as np
@@ -348,4 +351,115 @@ def test_protocol_measures_from_the_trial_start_to_its_end():
     assert (dist[:, :10] < 0.2).all() and (dist[:, -1] > 0.5).all()
     assert recovery_frame(dist, 0.5).tolist() == [-1, -1]
     assert recovery_frame(dist[:, :10], 0.5).tolist() == [0, 0]
+    env.close()
+
+
+# ---------------------------------------------------------------------- the MuJoCo Warp backend
+warp = pytest.mark.skipif(importlib.util.find_spec("mujoco_warp") is None,
+                          reason="MuJoCo Warp is not installed (pip install 'smpl-envs[gpu]')")
+KINDS4 = list(START_KINDS)  # reference, fallen, far, fallen+far: one world each
+
+
+def _warp_vec(env_id=ID, n=4, backend="warp", **kwargs):
+    kwargs = {"motions": "walk", "action_mode": "residual", **SMALL, **kwargs}
+    kwargs.update({"device": "cpu"} if backend == "warp" else {"num_threads": 1})
+    if env_id != ID:
+        kwargs.pop("fallen_cache_size")
+    return gym.make_vec(env_id, num_envs=n, backend=backend, **kwargs)
+
+
+@warp
+def test_warp_backend_matches_the_cpu_backend_from_the_same_starts():
+    # Each backend draws its far bearings and fallen states from its own generator (NumPy's, or
+    # torch's on the device), so the warp env is put into the CPU env's start states; the
+    # recovery state the reset computed from them (start kind, grace, root distance) is the same
+    # on both. A clamp of 3 m clamps the far worlds' goal; continue_prob 1 makes the
+    # continue-as-recovery rule deterministic, and termination_distance 0.1 triggers it.
+    import torch
+
+    kw = {"far_distance": (3.0, 4.0), "clamp_distance": 3.0, "continue_prob": 1.0, "grace_steps": 2,
+          "termination_distance": 0.1}
+    w, c = _warp_vec(**kw), _warp_vec(backend="cpu", **kw)
+    options = {"recovery_start": KINDS4, "motion_ids": [0] * 4, "start": "beginning"}
+    _, iw = w.reset(seed=0, options=options)
+    _, ic = c.reset(seed=0, options=options)
+    np.testing.assert_array_equal(iw["start_kind"].numpy(), ic["start_kind"])
+    assert iw["recovering"].tolist() == ic["recovering"].tolist() == [False, True, True, True]
+    w.sim.set_state(torch.arange(4), c.sim.qpos, c.sim.qvel)
+    w.recovery.root_distance[:] = torch.as_tensor(c.recovery.root_distance)
+    np.testing.assert_array_equal(w.recovery.grace.numpy(), c.recovery.grace)
+    rng = np.random.default_rng(0)
+    continued = False
+    for k in range(10):
+        a = rng.uniform(-0.3, 0.3, (4, 69)).astype(np.float32)
+        ow, rw, tw, uw, iw = w.step(torch.as_tensor(a))
+        oc, rc, tc, uc, ic = c.step(a)
+        tol = 1e-3 if k < 3 else 1e-2
+        assert np.abs(ow.numpy() - oc).max() < tol, k
+        assert np.abs(rw.numpy() - rc).max() < tol, k
+        assert np.abs(iw["reward_point"].numpy() - ic["reward_point"]).max() < tol, k
+        np.testing.assert_allclose(iw["root_distance"].numpy(), ic["root_distance"], atol=tol)
+        assert tw.tolist() == tc.tolist() and uw.tolist() == uc.tolist(), k
+        assert iw["recovering"].tolist() == ic["recovering"].tolist(), k
+        np.testing.assert_array_equal(w.recovery.grace.numpy(), c.recovery.grace)
+        continued |= bool(c.recovery.grace[0] == 2 and not ic["recovering"][0])  # a termination went on
+    assert continued
+    w.close()
+    c.close()
+
+
+@warp
+def test_far_and_fallen_starts_on_the_warp_backend_stay_in_torch():
+    import torch
+
+    env = _warp_vec(far_distance=(2.0, 5.0), termination_distance=0.05, continue_prob=0.5, grace_steps=2)
+    u = env.unwrapped
+    obs, info = env.reset(seed=1, options={"recovery_start": KINDS4})
+    assert isinstance(obs, torch.Tensor) and obs.dtype == torch.float32 and obs.shape == (4, 934)
+    assert all(isinstance(v, torch.Tensor) for v in info.values())
+    assert info["start_kind"].tolist() == [0, 1, 2, 3] and info["recovering"].tolist() == [False, True, True, True]
+    body = env.sim.bodies
+    ref_root = u.motion_frames.body_pos[u.ref.frame, 0]
+    d = torch.linalg.norm(body.pos[:, 0, :2] - ref_root[:, :2], dim=-1)
+    assert d[0] < 1e-5 and 2.0 - 1e-4 <= d[2] <= 5.0 + 1e-4  # reference, far
+    assert (body.pos[[1, 3], 0, 2] < 0.5).all() and d[1] < 1.0 and d[3] > 1.0  # fallen (and far)
+    assert torch.equal(env.sim.qvel[[1, 3]][:, u.humanoid.qvel], torch.zeros(2, 75))  # fallen: at rest
+    torch.testing.assert_close(info["root_distance"], torch.linalg.norm(body.pos[:, 0] - ref_root, dim=-1),
+                               atol=1e-5, rtol=0)
+    assert info["root_distance"][2] > 2.0 - 1e-4
+    # The start mix drawn on the device, and steps with continue-as-recovery (continue_prob 0.5).
+    _, info = env.reset(seed=2)
+    assert isinstance(info["start_kind"], torch.Tensor) and ((info["start_kind"] >= 0) & (info["start_kind"] < 4)).all()
+    for _ in range(8):
+        obs, reward, term, trunc, info = env.step(torch.zeros(4, 69))
+        assert isinstance(reward, torch.Tensor) and reward.dtype == torch.float32
+        assert isinstance(info["reward_point"], torch.Tensor) and isinstance(info["recovering"], torch.Tensor)
+        assert torch.isfinite(obs).all() and not info["diverged"].any()
+    assert u.recovery.grace.device == obs.device and not trunc.any()  # hold_end: no clip-end truncation
+    # Regenerated states reach the device.
+    u.regenerate_fallen(seed=7)
+    placed = u.recovery.fallen.place(u.np_random, torch.zeros(3, 2))
+    assert isinstance(placed, torch.Tensor) and placed.shape == (3, 76)
+    assert any(np.allclose(placed[0].numpy(), s, atol=1e-6) for s in u.recovery.fallen.states)
+    env.close()
+
+
+@warp
+def test_imitation_with_recovery_on_the_warp_backend():
+    import torch
+
+    env = _warp_vec("SMPL/Imitation-v0", n=2, recovery=True, autoreset_mode="SameStep")
+    env.reset(seed=0)
+    qpos = env.sim.qpos.clone()
+    qpos[:, 0] += 3.0
+    env.sim.set_state(torch.arange(2), qpos, env.sim.qvel.clone())
+    for _ in range(5):
+        obs, reward, term, trunc, info = env.step(env.unwrapped.reference_action())
+        assert not term.any() and info["recovering"].all()
+        assert isinstance(info["reward_point"], torch.Tensor) and isinstance(info["root_distance"], torch.Tensor)
+    assert (info["root_distance"] > 2.5).all() and info["start_kind"].tolist() == [0, 0]
+    # Back within reach: the ordinary goal and termination rules again.
+    env.reset(seed=0)
+    _, _, term, _, info = env.step(env.unwrapped.reference_action())
+    assert not info["recovering"].any() and (info["reward_point"] == 0).all()
     env.close()

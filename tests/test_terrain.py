@@ -1,7 +1,10 @@
 """`SMPL/Terrain-v0` and its terrain generator: Gymnasium contracts, a seeded terrain at the requested
 shares, the height map on a hand-made step, grounded start poses, terrain-relative falls, the
-off-path rule, bad input."""
+off-path rule, bad input; on the MuJoCo Warp backend: parity with the CPU one, torch outputs,
+seeding."""
 
+
+import importlib.util
 
 import gymnasium as gym
 import mujoco
@@ -276,3 +279,153 @@ def test_terrain_types_example_writes_its_picture(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     image = iio.imread(tmp_path / "t.png")
     assert image.shape == (120, 320, 3) and image.std() > 5  # 8 panels, 4 x 2
+
+
+# ---------------------------------------------------------------------------------------- warp backend
+# The task on MuJoCo Warp (Warp's CPU device here), against the CPU backend. A tiny terrain (2 x 2
+# tiles of 6 m) keeps the build short; the kernels compile once per model and are then cached.
+warp = pytest.mark.skipif(importlib.util.find_spec("mujoco_warp") is None,
+                          reason="MuJoCo Warp is not installed (pip install 'smpl-envs[gpu]')")
+TINY = dict(terrain_size=(2, 2), tile_size=6.0, terrain_border=2.0, terrain_seed=1, motions="walk")
+WORLDS = 3
+
+
+def _make(backend):
+    extra = dict(device="cpu") if backend == "warp" else dict(num_threads=1)
+    return gym.make_vec(ENV_ID, num_envs=WORLDS, backend=backend, autoreset_mode="Disabled", **TINY, **extra)
+
+
+@pytest.fixture(scope="module")
+def warp_env():
+    env = _make("warp")
+    yield env
+    env.close()
+
+
+def _copy_task_state(w, c, qpos, qvel):
+    """The CPU env `c`'s worlds, at (qpos, qvel), into the warp env `w`: the backends draw
+    different random numbers, so the warp worlds get the CPU worlds' starts, paths and clocks."""
+    import torch
+
+    ids = np.arange(WORLDS)
+    c.sim.set_state(ids, qpos, qvel)
+    w.sim.set_state(torch.as_tensor(ids), torch.as_tensor(qpos, dtype=torch.float32),
+                    torch.as_tensor(qvel, dtype=torch.float32))
+    for name in ("path", "path_length", "start_tile", "start_motion", "start_frame", "elapsed"):
+        getattr(w, name)[:] = torch.as_tensor(getattr(c, name))
+    w._refresh_points()
+    c._refresh_points()
+
+
+@warp
+def test_warp_backend_agrees_with_the_cpu_backend(warp_env):
+    import torch
+
+    from smpl_envs.features import heading_rotation
+
+    w, c = warp_env, _make("cpu")
+    c.reset(seed=0)
+    w.reset(seed=0)
+    # Through step(): the CPU worlds' starts raised 0.5 m, so that 5 steps stay in the air (MuJoCo
+    # Warp's heightfield collisions make other contact points than CPU MuJoCo's: on the terrain
+    # the two physics part by ~1e-2 m within a step, whatever the task does). Observations
+    # (height map included), rewards, terminations and info agree to float32 rounding.
+    z = c.humanoid.qpos.start + 2
+    qpos = c.sim.qpos.copy()
+    qpos[:, z] += 0.5
+    _copy_task_state(w, c, qpos, c.sim.qvel.copy())
+    rng = np.random.default_rng(0)
+    for k in range(5):
+        a = rng.uniform(-0.2, 0.2, (WORLDS, 69)).astype(np.float32)
+        ow, rw, tw, uw, iw = w.step(torch.as_tensor(a))
+        oc, rc, tc, uc, ic = c.step(a)
+        assert np.abs(ow.numpy() - oc).max() < 1e-3, k
+        assert np.abs(rw.numpy() - rc).max() < 1e-4, k
+        assert tw.tolist() == tc.tolist() and uw.tolist() == uc.tolist()
+        for key in ("path_error", "path_point", "path_length"):
+            assert np.abs(iw[key].numpy() - ic[key]).max() < 1e-4, key
+        assert iw["start_tile"].tolist() == ic["start_tile"].tolist()
+    # On the terrain, from one state: world 1 lies on its back on its platform, world 2's path
+    # jumped 5 m away; the task's reads of that state agree, terminations included.
+    qpos = c.sim.qpos.copy()
+    qpos[1, z] = c.ground(qpos[1:2, z - 2:z])[0] + 0.12
+    qpos[1, z + 1:z + 5] = [np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0]
+    c.path[2] += 5.0
+    _copy_task_state(w, c, qpos, np.zeros_like(c.sim.qvel))
+    out = []
+    for e in (w, c):
+        body = e.sim.bodies
+        heading = heading_rotation(body.rot[:, 0])
+        reward, _, terminated, _ = e._evaluate(body, heading)
+        out.append((e.backend.to_numpy(e._observe(body, heading)), e.backend.to_numpy(reward),
+                    e.backend.to_numpy(terminated), e.backend.to_numpy(e._task_info(body))))
+    (ow, rw, tw, iw), (oc, rc, tc, ic) = out
+    assert tc.tolist() == [False, True, True] and tw.tolist() == tc.tolist()
+    assert np.abs(ow - oc).max() < 1e-3 and np.abs(rw - rc).max() < 1e-4
+    assert all(np.abs(iw[k] - ic[k]).max() < 1e-4 for k in ("path_error", "path_point", "path_length"))
+    # Start placement: the lowest point of a pose and the terrain reads, as the CPU backend's.
+    from smpl_envs.humanoid.kinematics import lowest_point
+    from smpl_envs.humanoid.skeleton import MEAN_SKELETON
+
+    lib = c.motion_lib
+    frames = np.arange(0, len(lib.body_pos), 7)[:40]
+    pos, quat = lib.body_pos[frames], lib.body_quat[frames]
+    low = w._lowest_point(torch.as_tensor(pos), torch.as_tensor(quat)).numpy()
+    np.testing.assert_allclose(low, lowest_point(pos, quat, MEAN_SKELETON), atol=1e-5)
+    xy = np.random.default_rng(1).uniform(-9, 9, (50, 2))
+    for mode in ("bilinear", "min", "max", "dilated"):
+        np.testing.assert_allclose(w.ground(torch.as_tensor(xy, dtype=torch.float32), mode).numpy(),
+                                   c.ground(xy, mode), atol=1e-5)
+    c.close()
+
+
+@warp
+def test_warp_outputs_are_torch_tensors_and_starts_are_grounded(warp_env):
+    import torch
+
+    w = warp_env
+    obs, info = w.reset(seed=1)
+    assert isinstance(obs, torch.Tensor) and obs.dtype == torch.float32 and obs.shape == (WORLDS, OBS_DIM)
+    assert all(isinstance(v, torch.Tensor) for v in info.values())
+    assert {"path_error", "path_point", "path_length", "start_tile"} <= set(info)
+    body = w.sim.bodies
+    # Spawns on their tiles' platforms, paths from the pelvis, feet just above the terrain.
+    centres = torch.as_tensor(w.terrain.centres, dtype=torch.float32)[info["start_tile"]]
+    assert ((body.pos[:, 0, :2] - centres).abs() <= 1.0 + 1e-5).all()
+    assert info["path_error"].abs().max() < 1e-5
+    feet = [BODY_NAMES.index(n) for n in ("L_Ankle", "R_Ankle", "L_Toe", "R_Toe")]
+    clearance = body.pos[:, feet, 2] - w.ground(body.pos[:, feet, :2])
+    assert (clearance.amin(-1) < 0.2).all() and (clearance.amin(-1) > -0.05).all()
+    obs, reward, terminated, truncated, info = w.step(torch.zeros(WORLDS, 69))
+    assert reward.dtype == torch.float32 and reward.shape == (WORLDS,)
+    assert terminated.dtype == torch.bool and truncated.dtype == torch.bool and not terminated.any()
+    # A world whose path jumps 5 m away ends its episode; markers come back as NumPy.
+    w.path[2] += 5.0
+    w._refresh_points()
+    _, _, terminated, _, info = w.step(torch.zeros(WORLDS, 69))
+    assert terminated.tolist() == [False, False, True] and info["path_error"][2] > 4.0
+    markers = w._markers(0)
+    assert isinstance(markers[0][0], np.ndarray) and markers[0][0].shape == (1, 3) and markers[1][0].shape == (10, 3)
+
+
+@warp
+def test_warp_same_seed_same_episodes_and_partial_resets(warp_env):
+    import torch
+
+    w = warp_env
+
+    def run(seed):
+        obs, _ = w.reset(seed=seed)
+        out = [obs.clone()]
+        g = torch.Generator().manual_seed(0)
+        for _ in range(4):
+            out.append(w.step(torch.rand(WORLDS, 69, generator=g) * 0.4 - 0.2)[0].clone())
+        return torch.stack(out), w.path.clone()
+
+    (a, pa), (b, pb), (c, pc) = run(5), run(5), run(6)
+    assert torch.equal(a, b) and torch.equal(pa, pb)
+    assert not torch.allclose(a, c) and not torch.allclose(pa, pc)
+    # A masked reset redraws only the masked worlds' starts and paths.
+    before = w.path.clone()
+    w.reset(options={"reset_mask": np.array([False, True, False])})
+    assert torch.equal(w.path[[0, 2]], before[[0, 2]]) and not torch.equal(w.path[1], before[1])

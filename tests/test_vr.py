@@ -1,7 +1,9 @@
 """SMPL/VRTracking-v0: Gymnasium contracts, the three-point goal (which references it reads and
-that it is Imitation's goal of those bodies), rewards, termination, three-point stream files, and
-the evaluation protocol."""
+that it is Imitation's goal of those bodies), rewards, termination, three-point stream files, the
+evaluation protocol, and the MuJoCo Warp backend (on Warp's CPU device: parity with the CPU
+backend for clips and streams, torch outputs, stream starts on the device)."""
 
+import importlib.util
 from dataclasses import replace
 
 import gymnasium as gym
@@ -301,3 +303,145 @@ def test_a_directory_or_list_of_streams(tmp_path, walk_stream):
     obs, info = env.reset(seed=0, options={"motion_ids": [1, 0], "start": "beginning"})
     assert info["motion_id"].tolist() == [1, 0] and np.allclose(info["ref_point_pos"][0], s.positions[0], atol=1e-6)
     env.close()
+
+
+# ---------------------------------------------------------------------- the MuJoCo Warp backend
+# Parity tolerance as tests/test_env_warp.py: float32 there, float64 here; from the walk clip's
+# first frame observations agree to ~1e-5 (measured; the run and stand clips' foot contacts make
+# the two diverge within a few steps, so parity is checked on walk).
+warp = pytest.mark.skipif(importlib.util.find_spec("mujoco_warp") is None,
+                          reason="MuJoCo Warp is not installed (pip install 'smpl-envs[gpu]')")
+
+
+def _pair(**kwargs):
+    """The same env on the warp backend (Warp's CPU device) and on the CPU one."""
+    return _vec(backend="warp", device="cpu", **kwargs), _vec(num_threads=1, **kwargs)
+
+
+@warp
+@pytest.mark.parametrize("reward", ["full", "three_point"])
+def test_warp_backend_matches_the_cpu_backend(reward):
+    import torch
+
+    # One clip and starts at its first frame: the episodes that end restart alike on both
+    # backends (their random generators differ). A tight termination distance makes some end.
+    n, begin = 3, {"motion_ids": [0, 0, 0], "start": "beginning"}
+    w, c = _pair(num_envs=n, reward=reward, action_mode="residual", start="beginning", termination_distance=0.15)
+    ow, iw = w.reset(seed=0, options=begin)
+    oc, ic = c.reset(seed=0, options=begin)
+    assert np.abs(ow.numpy() - oc).max() < 1e-4
+    rng = np.random.default_rng(0)
+    ended = 0
+    for k in range(10):
+        a = rng.uniform(-0.3, 0.3, (n, 69)).astype(np.float32)
+        ow, rw, tw, uw, iw = w.step(torch.as_tensor(a))
+        oc, rc, tc, uc, ic = c.step(a)
+        tol = 1e-3 if k < 3 else 1e-2
+        assert np.abs(ow.numpy() - oc).max() < tol, k
+        assert np.abs(rw.numpy() - rc).max() < tol, k
+        assert tw.tolist() == tc.tolist() and uw.tolist() == uc.tolist(), k
+        for key in ("point_pos", "ref_point_pos", "point_error", "ref_body_pos", "reward_pos", "reward_rot"):
+            assert np.abs(iw[key].numpy() - ic[key]).max() < 10 * tol, (k, key)
+        np.testing.assert_array_equal(iw["motion_id"].numpy(), ic["motion_id"])
+        np.testing.assert_allclose(iw["motion_time"].numpy(), ic["motion_time"], atol=1e-6)
+        ended += int(tc.sum())
+    assert ended >= 2  # terminations and the restarts after them were compared too
+    w.close()
+    c.close()
+
+
+@warp
+def test_warp_outputs_are_torch_tensors():
+    import torch
+
+    env = _vec(backend="warp", device="cpu", action_mode="residual", render_mode="rgb_array", render_size=(64, 48))
+    obs, info = env.reset(seed=0)
+    assert isinstance(obs, torch.Tensor) and obs.dtype == torch.float32 and obs.shape == (2, 430)
+    assert all(isinstance(v, torch.Tensor) for v in info.values())
+    u = env.unwrapped
+    ref = u.reference_action()
+    assert isinstance(ref, torch.Tensor) and torch.equal(ref, torch.zeros(2, 69))
+    obs, reward, terminated, truncated, info = env.step(ref)
+    assert reward.dtype == torch.float32 and reward.shape == (2,)
+    assert terminated.dtype == torch.bool and truncated.dtype == torch.bool
+    assert all(isinstance(v, torch.Tensor) for v in info.values())
+    assert info["point_pos"].shape == (2, 3, 3) and info["point_error"].shape == (2, 3)
+    assert info["ref_body_pos"].shape == (2, 24, 3) and info["motion_id"].dtype == torch.int64
+    assert torch.allclose(reward, sum(v for k, v in info.items() if k.startswith("reward_")))
+    assert env.render().shape == (48, 64, 3)  # the reference markers read the host library
+    env.close()
+
+
+@warp
+def test_warp_backend_drives_streams(walk_stream, tmp_path):
+    import torch
+
+    lib = MotionLib.load("run", progress=False)
+    s = ThreePointStream.from_motion((lib, 0))
+    run = write_stream(tmp_path / "run.npz", s.positions, s.quats)  # its hand starts far from the pose
+    kwargs = {"motions": [str(run), str(walk_stream)], "start": "beginning", "grace_steps": 2,
+              "autoreset_mode": "SameStep"}
+    w, c = _pair(**kwargs)
+    u = w.unwrapped
+    assert u.streams is not None and u.motion_lib is None and u.reward_mode == "three_point"
+    assert isinstance(u.stream_frames.pos, torch.Tensor) and u.ref.lib is u.stream_frames
+    assert u.references is u.streams  # the evaluation reads names and lengths on the host
+
+    # Standing starts built on the device: the CPU backend's, to float32 rounding.
+    begin = {"motion_ids": [0, 1], "start": "beginning"}
+    ow, iw = w.reset(seed=0, options=begin)
+    oc, ic = c.reset(seed=0, options=begin)
+    assert isinstance(ow, torch.Tensor) and "ref_body_pos" not in iw
+    assert np.abs(ow.numpy() - oc).max() < 1e-4
+    assert np.abs(w.sim.qpos.numpy() - np.stack([d.qpos for d in c.unwrapped.sim.datas])).max() < 1e-5
+    for key in ("point_pos", "ref_point_pos", "point_error", "motion_time"):
+        assert np.abs(iw[key].numpy() - ic[key]).max() < 1e-5, key
+
+    # Hold the start pose: the run stream's hand is beyond 0.25 m once the grace period is over.
+    hold = u._start_pose[7:] / u.action_scale
+    assert isinstance(hold, torch.Tensor)
+    alike = np.ones(2, bool)  # worlds not restarted yet (a restart draws its stream on each backend's generator)
+    for k in range(3):
+        ow, rw, tw, uw, iw = w.step(hold.repeat(2, 1))
+        oc, rc, tc, uc, ic = c.step(np.tile(hold.numpy(), (2, 1)))
+        assert tw.tolist() == tc.tolist() and tc[0] == (k == 1), k
+        assert np.abs(rw.numpy() - rc)[alike].max(initial=0) < 1e-3, k
+        alike &= ~tc
+        assert np.abs(ow.numpy() - oc)[alike].max(initial=0) < 1e-3, k
+        ended = tw.nonzero().reshape(-1)
+        if len(ended):
+            # Restarted within the step (SameStep): from the first frame of a stream, standing
+            # under its head; the info is the new episode's.
+            assert (u.elapsed[ended] == 0).all() and torch.isfinite(ow).all()
+            assert torch.equal(u.ref.frame[ended], u.stream_frames.starts[u.ref.motion_id[ended]])
+            assert torch.allclose(iw["point_pos"][ended, 0, :2], iw["ref_point_pos"][ended, 0, :2], atol=1e-5)
+    assert not alike[0]
+
+    # Random starts on the device: frames inside their streams, the head under the stream head
+    # and facing its way.
+    obs, info = w.reset(seed=1, options={"start": "random"})
+    frames, ids = u.ref.frame, u.ref.motion_id
+    starts, lengths = u.stream_frames.starts[ids], u.stream_frames.lengths[ids]
+    assert ((frames >= starts) & (frames < starts + lengths - 1)).all()
+    host = u.streams.pos[frames.numpy()]
+    assert np.allclose(info["ref_point_pos"].numpy(), host, atol=1e-6)
+    assert torch.allclose(info["point_pos"][:, 0, :2], info["ref_point_pos"][:, 0, :2], atol=1e-5)
+    head_yaw = yaw_of(u.sim.bodies.rot[:, HEAD])
+    assert torch.allclose(head_yaw, yaw_of(u.stream_frames.rot[frames, 0]), atol=1e-4)
+    w.close()
+    c.close()
+
+
+@warp
+def test_warp_evaluation_of_a_stream(tmp_path):
+    lib = MotionLib.load("crouch", progress=False)
+    s = ThreePointStream.from_motion((lib, 0))
+    path = str(write_stream(tmp_path / "crouch.npz", s.positions, s.quats))
+
+    def zero(obs):  # T-pose targets: the humanoid falls away from the stream within a second
+        return np.zeros((len(obs), 69), np.float32)
+
+    rows = [smpl_envs.evaluate(zero, ID, motions=path, num_envs=1, progress=False, env_kwargs=kw).rows[0]
+            for kw in ({"backend": "warp", "device": "cpu"}, {})]
+    assert rows[0]["frames"] == rows[1]["frames"] and rows[0]["fail_frame"] == rows[1]["fail_frame"]
+    assert rows[0]["mpjpe_g"] == pytest.approx(rows[1]["mpjpe_g"], rel=0.05)

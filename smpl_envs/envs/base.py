@@ -154,8 +154,7 @@ class HumanoidVecEnv(VectorEnv):
         self.num_envs = _positive_int("num_envs", num_envs)
         if backend not in self.backends:
             raise ValueError(f"{type(self).__name__} runs on backend {' or '.join(map(repr, self.backends))}, "
-                             f"got {backend!r}" + ("; so far the 'warp' backend serves Imitation and "
-                                                   "KeypointImitation" if backend == "warp" else ""))
+                             f"got {backend!r} (a task opts in to a backend with its `backends` attribute)")
         self.backend = make_backend(backend, device)
         if start not in STARTS:
             raise ValueError(f"start must be one of {STARTS}, got {start!r}")

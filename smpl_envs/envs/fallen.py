@@ -17,6 +17,11 @@ take a few seconds. The states are humanoid-only qpos rows (76: root position, r
 target's xy places a state anywhere (`FallenStates.place`). States are memoised per
 (count, seed): envs that ask for the same set share it, and `FallenStates.regenerate` draws a
 new set on demand (e.g. when the motion set changes).
+
+Backends: the states are always generated on the host (NumPy, CPU MuJoCo: a setup cost); an env
+on MuJoCo Warp gives `FallenStates` its torch backend, and the set is copied to the device once
+(float32) and again after `regenerate`, so `place`, which runs at every fallen start, stays on
+the device.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import functools
 
 import numpy as np
 
+from ..backend import NumpyBackend
 from ..humanoid.builder import build_spec, humanoid_addresses
 from ..humanoid.skeleton import ACTION_SCALE
 from ..sim import CPUSim
@@ -84,15 +90,19 @@ def _check(count, seed) -> None:
 
 
 class FallenStates:
-    """A cache of fallen states, generated on first use (`states`) and on demand (`regenerate`)."""
+    """A cache of fallen states, generated on first use (`states`) and on demand (`regenerate`).
+    `backend`: where `place` returns its rows (the NumPy backend by default)."""
 
-    def __init__(self, count: int = 128, seed: int = 0):
+    def __init__(self, count: int = 128, seed: int = 0, backend=None):
         _check(count, seed)
         self.count, self.seed = int(count), int(seed)
+        self.backend = backend or NumpyBackend()
         self._states = None
+        self._placed = None  # `states` on the backend (the same array on the NumPy one)
 
     @property
     def states(self) -> np.ndarray:
+        """(count, 76) the host (NumPy, read-only) states."""
         if self._states is None:
             self._states = generate_fallen_states(self.count, self.seed)
         return self._states
@@ -102,10 +112,14 @@ class FallenStates:
         _check(self.count, seed)
         self.seed = int(seed)
         self._states = generate_fallen_states(self.count, self.seed)
+        self._placed = None
 
-    def place(self, rng: np.random.Generator, xy: np.ndarray) -> np.ndarray:
-        """(n, 76) humanoid qpos rows: random cached states with their root moved over `xy` (n, 2)."""
-        states = self.states
-        rows = states[rng.integers(0, len(states), len(xy))].copy()
+    def place(self, rng: np.random.Generator, xy) -> np.ndarray:
+        """(n, 76) humanoid qpos rows on the backend: random cached states with their root moved
+        over `xy` (n, 2), drawn with the env's generator `rng`."""
+        if self._placed is None:
+            self._placed = self.backend.asarray(self.states)  # once per set: a device copy
+        states = self._placed
+        rows = states[self.backend.integers(rng, 0, len(states), len(xy))]  # indexing copies
         rows[:, :2] += xy
         return rows

@@ -147,8 +147,6 @@ class ImitationVecEnv(HumanoidVecEnv):
         self.ref = ReferenceTracker(self.motion_frames, self.num_envs, self.backend)
         self.recovery = None
         if recovery is not False:
-            if self.backend.name != "cpu":
-                raise ValueError("recovery=True runs on backend='cpu' only so far")
             if recovery is True:
                 recovery = {}
             if not isinstance(recovery, dict):
@@ -167,7 +165,7 @@ class ImitationVecEnv(HumanoidVecEnv):
         qpos, qvel = super()._reset_task(ids, options)
         self.ref.begin(ids, self.start_motion[ids], self.start_frame[ids])
         if self.recovery is not None:
-            qpos, qvel = self.recovery.reset(ids, qpos, qvel, self.motion_lib.body_pos[self.ref.frame[ids], 0],
+            qpos, qvel = self.recovery.reset(ids, qpos, qvel, self.motion_frames.body_pos[self.ref.frame[ids], 0],
                                              options.get("recovery_start"), self.np_random)
         return qpos, qvel
 

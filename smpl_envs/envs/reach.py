@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..evaluation import EpisodeProtocol
-from ..features import self_obs, to_heading
+from ..features import self_obs, to_heading, xp
 from ..humanoid.skeleton import BODY_NAMES
 from .base import check_range
 from .goal import GoalVecEnv, Schedule, check_interval
@@ -44,7 +44,8 @@ def reach_reward(hand_pos, target):
     """(reward (N,), hand distance (N,)) for hand and target positions (N, 3)."""
     d = hand_pos - target
     sq = (d * d).sum(-1)
-    return np.exp(-4.0 * sq), np.sqrt(sq)
+    m = xp(sq)
+    return m.exp(-4.0 * sq), m.sqrt(sq)
 
 
 def reach_episode_metrics(log: dict) -> dict:
@@ -65,6 +66,7 @@ class ReachVecEnv(GoalVecEnv):
 
     task_layout = {"task": REACH_LAYOUT}
     evaluation = EpisodeProtocol(("hand_distance", "target_index"), reach_episode_metrics)
+    backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, target_range_xy=(-1.0, 1.0), target_range_z=(0.2, 2.0),
                  resample_interval=(50, 99), **kwargs):
@@ -72,19 +74,20 @@ class ReachVecEnv(GoalVecEnv):
         self.target_range_z = check_range("target_range_z", target_range_z, 0.0, 3.0)
         interval = check_interval("resample_interval", resample_interval)
         super().__init__(num_envs, **kwargs)
-        n = self.num_envs
-        self.target = np.zeros((n, 3))          # world frame
-        self.target_index = np.zeros(n, np.int64)
-        self.schedule = Schedule(n, interval)
+        n, b = self.num_envs, self.backend
+        self.target = b.zeros((n, 3))          # world frame
+        self.target_index = b.zeros(n, "int")
+        self.schedule = Schedule(n, interval, b)
 
     def _resample(self, ids: np.ndarray, qpos: np.ndarray) -> None:
         """New targets for worlds `ids` around the pose in their rows of full-model `qpos`."""
-        rng = self.np_random
+        rng, b = self.np_random, self.backend
         root, heading = self.root_pose(qpos)
-        local = np.stack([rng.uniform(*self.target_range_xy, len(ids)), rng.uniform(*self.target_range_xy, len(ids)),
-                          np.zeros(len(ids))], -1)
-        self.target[ids] = root + (heading @ local[..., None])[..., 0]
-        self.target[ids, 2] = rng.uniform(*self.target_range_z, len(ids))
+        n = len(ids)
+        local = b.xp.stack([b.uniform(rng, n, *self.target_range_xy), b.uniform(rng, n, *self.target_range_xy),
+                            b.zeros(n)], -1)
+        self.target[ids] = root + (heading @ b.asarray(local)[..., None])[..., 0]
+        self.target[ids, 2] = b.asarray(b.uniform(rng, n, *self.target_range_z))
         self.schedule.reset(ids, self.elapsed, rng)
 
     def _reset_task(self, ids, options):
@@ -101,15 +104,16 @@ class ReachVecEnv(GoalVecEnv):
 
     def _evaluate(self, body, heading):
         reward, _ = reach_reward(body.pos[:, HAND], self.target)
-        return reward, {"reach": reward}, self._fallen(body), np.zeros(self.num_envs, bool)
+        return reward, {"reach": reward}, self._fallen(body), self.backend.zeros(self.num_envs, "bool")
 
     def _observe(self, body, heading):
         rel = to_heading((self.target - body.pos[:, 0])[:, None], heading)[:, 0]
-        return np.concatenate([self_obs(body, heading), rel], -1)
+        return self.backend.xp.concatenate([self_obs(body, heading), rel], -1)
 
     def _task_info(self, body):
-        return {"hand_distance": reach_reward(body.pos[:, HAND], self.target)[1], "target_pos": self.target.copy(),
-                "target_index": self.target_index.copy()}
+        copy = self.backend.copy
+        return {"hand_distance": reach_reward(body.pos[:, HAND], self.target)[1], "target_pos": copy(self.target),
+                "target_index": copy(self.target_index)}
 
     def _markers(self, world):
-        return [(self.target[world], (0.95, 0.75, 0.1, 0.9), 0.05)]
+        return [(self.backend.to_numpy(self.target[world]), (0.95, 0.75, 0.1, 0.9), 0.05)]

@@ -46,6 +46,11 @@ always ends the episode; the time limit truncates it.
 `info` adds `recovering` ((N,) bool), `root_distance` ((N,) m) and `start_kind` ((N,) index into
 START_KINDS).
 
+Backends: both (`backend="cpu"` or `"warp"`), with one code path; on MuJoCo Warp the per-world
+recovery state, the start draws (the env's torch generator: the same seed gives the same
+episodes, not the CPU backend's), the goal switch and the rewards stay in torch on the device, and
+the fallen states are generated on the host once and copied to the device (`smpl_envs.envs.fallen`).
+
 Evaluation (`smpl-envs eval`): `RecoveryProtocol`, PHC's Succ-5s / Succ-10s for fallen, far (3 m)
 and fallen+far starts on the standing clip (module `RecoveryProtocol` docstring).
 """
@@ -62,7 +67,7 @@ from tqdm.auto import tqdm
 from .. import metrics
 from ..metrics import recovered_within, recovery_frame  # noqa: F401 (also this module's API)
 from ..evaluation import EvalProtocol, EvalResult, _act, _check_disabled_autoreset
-from ..features import BodyState
+from ..features import BodyState, xp
 from .base import check_range
 from .fallen import FallenStates
 from .imitation import ImitationVecEnv
@@ -96,31 +101,34 @@ def check_starts(starts) -> np.ndarray:
     return p / p.sum()
 
 
-def root_distance(sim: BodyState, ref: BodyState) -> np.ndarray:
+def root_distance(sim: BodyState, ref: BodyState):
     """(N,) distance (m) between the simulated and the reference pelvis."""
     d = ref.pos[:, 0] - sim.pos[:, 0]
-    return np.sqrt((d * d).sum(-1))
+    return xp(d).sqrt((d * d).sum(-1))
 
 
 def point_reward(d_prev, d, scale: float = POINT_SCALE, clip: float = POINT_CLIP):
     """(N,) root-distance progress reward scale x min(d_prev - d, clip): positive when closing in."""
-    return scale * np.minimum(np.asarray(d_prev) - np.asarray(d), clip)
+    if xp(d_prev, d) is np:
+        d_prev, d = np.asarray(d_prev), np.asarray(d)
+    return scale * (d_prev - d).clip(max=clip)
 
 
-def recovery_reference(sim: BodyState, ref: BodyState, far: np.ndarray, clamp: float = CLAMP_DISTANCE) -> BodyState:
+def recovery_reference(sim: BodyState, ref: BodyState, far, clamp: float = CLAMP_DISTANCE) -> BodyState:
     """The reference the goal shows: for worlds in the mask `far`, non-root bodies replaced by the
     simulated ones and the root position clamped to `clamp` m from the simulated root along the
     same direction; other worlds keep `ref`."""
+    m = xp(sim.pos, ref.pos)
     delta = ref.pos[:, 0] - sim.pos[:, 0]
-    dist = np.sqrt((delta * delta).sum(-1))
-    root = sim.pos[:, 0] + delta * np.minimum(1.0, clamp / np.maximum(dist, 1e-9))[:, None]
+    dist = m.sqrt((delta * delta).sum(-1))
+    root = sim.pos[:, 0] + delta * (clamp / dist.clip(min=1e-9)).clip(max=1.0)[:, None]
     f3, f4 = far[:, None, None], far[:, None, None, None]
     out = {}
     for name, f in (("pos", f3), ("rot", f4), ("lin_vel", f3), ("ang_vel", f3)):
-        a = np.where(f, getattr(sim, name), getattr(ref, name))
+        a = m.where(f, getattr(sim, name), getattr(ref, name))
         a[:, 0] = getattr(ref, name)[:, 0]
         out[name] = a
-    out["pos"][:, 0] = np.where(far[:, None], root, ref.pos[:, 0])
+    out["pos"][:, 0] = m.where(far[:, None], root, ref.pos[:, 0])
     return BodyState(dof_pos=ref.dof_pos, dof_vel=ref.dof_vel, **out)
 
 
@@ -138,7 +146,12 @@ def _number(name: str, value, positive: bool = False) -> float:
 # ---------------------------------------------------------------------- per-world recovery state
 class RecoveryController:
     """The recovery state and rules of an imitation env's worlds (module docstring); the env
-    calls it from its hooks. kwargs are the recovery kwargs of Recovery-v0."""
+    calls it from its hooks. kwargs are the recovery kwargs of Recovery-v0.
+
+    One code path for both backends (`smpl_envs.backend`): per-world arrays, masks and random
+    draws go through the env's backend, so on MuJoCo Warp everything a step or a reset does here
+    stays in torch on the env's device; only the fallen states are made on the host (at setup,
+    copied to the device once: `FallenStates`)."""
 
     def __init__(self, env, *, starts=None, switch_distance=SWITCH_DISTANCE, clamp_distance=CLAMP_DISTANCE,
                  point_scale=POINT_SCALE, point_clip=POINT_CLIP, recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT,
@@ -158,63 +171,67 @@ class RecoveryController:
         self.grace_steps = int(grace_steps)
         self.far_distance = check_range("far_distance", far_distance, 0.0)
         self.hold_end = bool(hold_end)
-        self.fallen = FallenStates(fallen_cache_size, fallen_seed)
+        self.backend = b = env.backend
+        self.fallen = FallenStates(fallen_cache_size, fallen_seed, b)
         self.hum = env.humanoid
+        self._fallen_kind, self._far_kind = b.asarray(FALLEN, "bool"), b.asarray(FAR, "bool")
         n = env.num_envs
-        self.start_kind = np.zeros(n, np.int64)
-        self.root_distance = np.zeros(n)
-        self.grace = np.zeros(n, np.int64)
+        self.start_kind = b.zeros(n, "int")
+        self.root_distance = b.zeros(n)
+        self.grace = b.zeros(n, "int")
 
     def reset(self, ids, qpos, qvel, ref_root, kind, rng):
         """Start states of worlds `ids` from their reference-state (qpos, qvel) and reference
         roots (n, 3): drawn from the start mix, or `kind` (a START_KINDS name, or one per world)."""
+        b, xp = self.backend, self.backend.xp
         n = len(ids)
         if kind is None:
-            kinds = rng.choice(len(START_KINDS), n, p=self.p)
+            kinds = b.choice(rng, len(START_KINDS), n, self.p)
         else:
             names = [kind] * n if isinstance(kind, str) else list(kind)
             bad = sorted({str(k) for k in names} - set(START_KINDS))
             if bad or len(names) != n:
                 raise ValueError(f"reset option recovery_start must be one of {START_KINDS} or {n} of them, got {kind!r}")
-            kinds = np.array([START_KINDS.index(k) for k in names], np.int64)
-        fallen, far = FALLEN[kinds], FAR[kinds]
-        q = qpos[:, self.hum.qpos]
+            kinds = b.asarray([START_KINDS.index(k) for k in names], "int")
+        fallen, far = self._fallen_kind[kinds], self._far_kind[kinds]
+        q = qpos[:, self.hum.qpos]  # a view: written in place
         if fallen.any():
             q[fallen] = self.fallen.place(rng, ref_root[fallen, :2])
-            qvel[np.ix_(fallen, np.arange(self.hum.qvel.start, self.hum.qvel.stop))] = 0.0
+            qvel[fallen, self.hum.qvel] = 0.0
         if far.any():
-            r = rng.uniform(*self.far_distance, far.sum())
-            bearing = rng.uniform(0.0, 2.0 * np.pi, far.sum())
-            q[far, :2] += r[:, None] * np.stack([np.cos(bearing), np.sin(bearing)], -1)
-        qpos[:, self.hum.qpos] = q
+            m = int(far.sum())
+            r = b.uniform(rng, m, *self.far_distance)
+            bearing = b.uniform(rng, m, 0.0, 2.0 * np.pi)
+            q[far, :2] += b.asarray(r[:, None] * xp.stack([xp.cos(bearing), xp.sin(bearing)], -1))
         self.start_kind[ids] = kinds
-        self.grace[ids] = np.where(kinds > 0, self.grace_steps, 0)
-        d = np.linalg.norm(q[:, :3] - ref_root, axis=-1)
-        self.root_distance[ids] = d
+        self.grace[ids] = xp.where(kinds > 0, self.grace_steps, 0)
+        d = q[:, :3] - ref_root
+        self.root_distance[ids] = xp.sqrt((d * d).sum(-1))
         return qpos, qvel
 
     def evaluate(self, body, ref, reward, terms, terminated, truncated, rng):
         """Reward, terms, terminated and truncated of the recovery rules, from Imitation's."""
+        b, xp = self.backend, self.backend.xp
         d = root_distance(body, ref)
         rec = d > self.switch_distance
         point = point_reward(self.root_distance, d, self.point_scale, self.point_clip)
         self.root_distance = d
         if rec.any():
-            w = np.where(rec, self.imitation_weight, 1.0)
+            w = xp.where(rec, self.imitation_weight, 1.0)
             terms = {k: (v if k == "energy" else v * w) for k, v in terms.items()}
-            terms["point"] = np.where(rec, point, 0.0)
+            terms["point"] = xp.where(rec, point, 0.0)
             reward = sum(terms.values())
         else:
-            terms = {**terms, "point": np.zeros_like(reward)}
-        self.grace = np.where(rec, self.grace_steps, np.maximum(self.grace - 1, 0))
+            terms = {**terms, "point": xp.zeros_like(reward)}
+        self.grace = xp.where(rec, self.grace_steps, (self.grace - 1).clip(min=0))
         terminated = terminated & ~rec & (self.grace == 0)
         if self.continue_prob > 0 and terminated.any():
-            ids = np.flatnonzero(terminated)
-            go_on = ids[rng.random(len(ids)) < self.continue_prob]
+            ids = b.nonzero(terminated)
+            go_on = ids[b.uniform(rng, len(ids)) < self.continue_prob]
             terminated[go_on] = False
             self.grace[go_on] = self.grace_steps
         if self.hold_end:
-            truncated = np.zeros_like(truncated)
+            truncated = xp.zeros_like(truncated)
         return reward, terms, terminated, truncated
 
     def goal_reference(self, body, ref_next):
@@ -223,8 +240,9 @@ class RecoveryController:
         return recovery_reference(body, ref_next, far, self.clamp_distance) if far.any() else ref_next
 
     def info(self) -> dict:
-        return {"recovering": self.root_distance > self.switch_distance, "root_distance": self.root_distance.copy(),
-                "start_kind": self.start_kind.copy()}
+        copy = self.backend.copy
+        return {"recovering": self.root_distance > self.switch_distance, "root_distance": copy(self.root_distance),
+                "start_kind": copy(self.start_kind)}
 
 
 # ---------------------------------------------------------------------- evaluation
@@ -409,7 +427,7 @@ class RecoveryVecEnv(ImitationVecEnv):
     """
 
     evaluation = RecoveryProtocol()
-    backends = ("cpu",)
+    backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, motions="stand", starts=None, switch_distance=SWITCH_DISTANCE,
                  clamp_distance=CLAMP_DISTANCE, point_scale=POINT_SCALE, point_clip=POINT_CLIP,

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..evaluation import EpisodeProtocol
-from ..features import self_obs
+from ..features import self_obs, xp
 from .base import check_range
 from .goal import GoalVecEnv, Schedule, check_interval
 
@@ -46,7 +46,8 @@ def speed_reward(root_vel, target_dir, target_speed):
     vx = root_vel[:, 0] * target_dir[:, 0] + root_vel[:, 1] * target_dir[:, 1]
     vy = root_vel[:, 1] * target_dir[:, 0] - root_vel[:, 0] * target_dir[:, 1]
     err = target_speed - vx
-    return np.exp(-0.25 * (err * err + 0.1 * vy * vy)), np.abs(err)
+    m = xp(root_vel)
+    return m.exp(-0.25 * (err * err + 0.1 * vy * vy)), m.abs(err)
 
 
 def speed_episode_metrics(log: dict) -> dict:
@@ -62,21 +63,22 @@ class SpeedVecEnv(GoalVecEnv):
 
     task_layout = {"task": SPEED_LAYOUT}
     evaluation = EpisodeProtocol(("speed_error",), speed_episode_metrics)
+    backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, speed_range=(0.0, 5.0), resample_interval=(100, 199), **kwargs):
         self.speed_range = check_range("speed_range", speed_range, low=0.0)
         interval = check_interval("resample_interval", resample_interval)
         super().__init__(num_envs, **kwargs)
-        n = self.num_envs
-        self.target_dir = np.tile([1.0, 0.0], (n, 1))  # world frame, unit
-        self.target_speed = np.zeros(n)
-        self.schedule = Schedule(n, interval)
+        n, b = self.num_envs, self.backend
+        self.target_dir = b.rows(b.asarray([1.0, 0.0]), n)  # world frame, unit
+        self.target_speed = b.zeros(n)
+        self.schedule = Schedule(n, interval, b)
 
     def _resample(self, ids: np.ndarray) -> None:
-        rng = self.np_random
-        yaw = rng.uniform(0.0, 2.0 * np.pi, len(ids))
-        self.target_dir[ids] = np.stack([np.cos(yaw), np.sin(yaw)], -1)
-        self.target_speed[ids] = rng.uniform(*self.speed_range, len(ids))
+        rng, b = self.np_random, self.backend
+        yaw = b.uniform(rng, len(ids), 0.0, 2.0 * np.pi)
+        self.target_dir[ids] = b.xp.stack([b.xp.cos(yaw), b.xp.sin(yaw)], -1)
+        self.target_speed[ids] = b.uniform(rng, len(ids), *self.speed_range)
         self.schedule.reset(ids, self.elapsed, rng)
 
     def _reset_task(self, ids, options):
@@ -91,24 +93,26 @@ class SpeedVecEnv(GoalVecEnv):
 
     def _evaluate(self, body, heading):
         reward, _ = speed_reward(body.lin_vel[:, 0], self.target_dir, self.target_speed)
-        return reward, {"speed": reward}, self._fallen(body), np.zeros(self.num_envs, bool)
+        return reward, {"speed": reward}, self._fallen(body), self.backend.zeros(self.num_envs, "bool")
 
     def _observe(self, body, heading):
         # The target direction in the heading frame: rotate by minus the heading's yaw.
         c, s = heading[:, 0, 0], heading[:, 1, 0]
         d = self.target_dir
-        local = np.stack([c * d[:, 0] + s * d[:, 1], c * d[:, 1] - s * d[:, 0]], -1)
-        return np.concatenate([self_obs(body, heading), local, self.target_speed[:, None]], -1)
+        m = self.backend.xp
+        local = m.stack([c * d[:, 0] + s * d[:, 1], c * d[:, 1] - s * d[:, 0]], -1)
+        return m.concatenate([self_obs(body, heading), local, self.target_speed[:, None]], -1)
 
     def _task_info(self, body):
         error = speed_reward(body.lin_vel[:, 0], self.target_dir, self.target_speed)[1]
-        return {"speed_error": error, "target_speed": self.target_speed.copy(),
-                "target_dir": self.target_dir.copy()}
+        copy = self.backend.copy
+        return {"speed_error": error, "target_speed": copy(self.target_speed), "target_dir": copy(self.target_dir)}
 
     def _markers(self, world):
         # A dotted arrow from the pelvis along the target direction, one dot per 0.25 m/s.
-        root = self.sim.bodies.pos[world, 0]
-        k = max(1, int(round(self.target_speed[world] / 0.25)))
+        to_numpy = self.backend.to_numpy
+        root = to_numpy(self.sim.bodies.pos[world, 0])
+        k = max(1, int(round(float(self.target_speed[world]) / 0.25)))
         steps = 0.15 * np.arange(1, k + 1)[:, None]
-        dots = root + np.concatenate([steps * self.target_dir[world], np.zeros((k, 1))], -1)
+        dots = root + np.concatenate([steps * to_numpy(self.target_dir[world]), np.zeros((k, 1))], -1)
         return [(dots, (0.1, 0.6, 0.9, 0.9), 0.025)]

@@ -37,7 +37,7 @@ import mujoco
 import numpy as np
 
 from ..evaluation import EpisodeProtocol
-from ..features import rot6d, rot_to_heading, rotmat_from_quat, self_obs, to_heading
+from ..features import rot6d, rot_to_heading, rotmat_from_quat, self_obs, to_heading, xp
 from ..humanoid.skeleton import BODY_NAMES
 from .base import check_range
 from .goal import GoalVecEnv
@@ -56,13 +56,14 @@ STRIKE_LAYOUT = (
 def strike_reward(box_up, root_pos, root_vel, box_pos):
     """(reward (N,), {"topple", "approach"}) from the box's up . up_target (N,), pelvis position
     and velocity (N, 3) and box position (N, 3), world frame."""
+    m = xp(box_pos)
     toppled = box_up < TOPPLED
     to_box = box_pos[:, :2] - root_pos[:, :2]
-    to_box = to_box / (np.linalg.norm(to_box, axis=-1, keepdims=True) + 1e-9)
+    to_box = to_box / (m.sqrt((to_box * to_box).sum(-1))[:, None] + 1e-9)
     v = (root_vel[:, :2] * to_box).sum(-1)
-    approach = np.where(v > 0.0, 0.4 * np.exp(-4.0 * np.maximum(0.0, 1.0 - v) ** 2), 0.0)
-    topple = 0.6 * np.maximum(0.0, 1.0 - box_up)
-    terms = {"topple": np.where(toppled, 1.0, topple), "approach": np.where(toppled, 0.0, approach)}
+    approach = m.where(v > 0.0, 0.4 * m.exp(-4.0 * (1.0 - v).clip(min=0.0) ** 2), 0.0)
+    topple = 0.6 * (1.0 - box_up).clip(min=0.0)
+    terms = {"topple": m.where(toppled, 1.0, topple), "approach": m.where(toppled, 0.0, approach)}
     return terms["topple"] + terms["approach"], terms
 
 
@@ -79,6 +80,7 @@ class StrikeVecEnv(GoalVecEnv):
 
     task_layout = {"task": STRIKE_LAYOUT}
     evaluation = EpisodeProtocol(("toppled",), strike_episode_metrics)
+    backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, box_distance=(1.5, 5.0), box_size=(0.4, 0.4, 1.8),
                  box_density: float = 30.0, **kwargs):
@@ -108,15 +110,15 @@ class StrikeVecEnv(GoalVecEnv):
 
     def _reset_task(self, ids, options):
         qpos, qvel = super()._reset_task(ids, options)
-        rng = self.np_random
+        rng, b = self.np_random, self.backend
         root, _ = self.root_pose(qpos)
-        distance = rng.uniform(*self.box_distance, len(ids))
-        bearing = rng.uniform(0.0, 2.0 * np.pi, len(ids))
+        distance = b.uniform(rng, len(ids), *self.box_distance)
+        bearing = b.uniform(rng, len(ids), 0.0, 2.0 * np.pi)
         box = qpos[:, self.box_qpos]
-        box[:, 0] = root[:, 0] + distance * np.cos(bearing)
-        box[:, 1] = root[:, 1] + distance * np.sin(bearing)
+        box[:, 0] = root[:, 0] + distance * b.xp.cos(bearing)
+        box[:, 1] = root[:, 1] + distance * b.xp.sin(bearing)
         box[:, 2] = self.box_size[2] / 2
-        box[:, 3:] = [1.0, 0.0, 0.0, 0.0]
+        box[:, 3:] = b.asarray([1.0, 0.0, 0.0, 0.0])
         qpos[:, self.box_qpos] = box
         qvel[:, self.box_qvel] = 0.0
         return qpos, qvel
@@ -134,15 +136,17 @@ class StrikeVecEnv(GoalVecEnv):
         reward, terms = strike_reward(up, body.pos[:, 0], body.lin_vel[:, 0], pos)
         touching = self.sim.sensordata > 0
         touching[:, STRIKERS] = False
-        return reward, terms, self._fallen(body) | touching.any(-1), np.zeros(self.num_envs, bool)
+        return reward, terms, self._fallen(body) | touching.any(-1), self.backend.zeros(self.num_envs, "bool")
 
     def _observe(self, body, heading):
         pos, rot, lin, ang = self.box_state()
-        vectors = to_heading(np.stack([pos - body.pos[:, 0], lin, ang], 1), heading)
+        m = self.backend.xp
+        vectors = to_heading(m.stack([pos - body.pos[:, 0], lin, ang], 1), heading)
         box_rot = rot6d(rot_to_heading(rot[:, None], heading))[:, 0]
-        return np.concatenate([self_obs(body, heading), vectors[:, 0], box_rot, vectors[:, 1], vectors[:, 2]], -1)
+        return m.concatenate([self_obs(body, heading), vectors[:, 0], box_rot, vectors[:, 1], vectors[:, 2]], -1)
 
     def _task_info(self, body):
         pos, rot, _, _ = self.box_state()
         up = rot[:, 2, 2]
-        return {"toppled": up < TOPPLED, "box_pos": pos.copy(), "box_up": up, "touching": self.sim.sensordata > 0}
+        return {"toppled": up < TOPPLED, "box_pos": self.backend.copy(pos), "box_up": up,
+                "touching": self.sim.sensordata > 0}

@@ -39,6 +39,15 @@ path's current point.
 from its start to the current point), `start_tile` (row-major tile index of the start), plus the
 core's entries.
 
+Backends: "cpu" (NumPy) and "warp" (`backend="warp", device=...`: MuJoCo Warp, torch tensors on
+the device, float32), one code path: the terrain is built on the host once and its height grids,
+tile centres and the map's offsets are copied to the device at construction; paths, lookups,
+observation, reward, termination, info and start placement then run on the backend's arrays
+(random draws through `smpl_envs.backend`, so the CPU backend's episodes are those it always had).
+MuJoCo Warp's heightfield collisions make other contact points than CPU MuJoCo's, so on the
+terrain the two backends' physics part by ~1e-2 m within a step; the task's reads of one state
+agree to float32 rounding (tests/test_terrain.py).
+
 Evaluation (`smpl_envs.evaluate`, `smpl-envs eval`): 32 seeded episodes; the mean xy error to the
 path, the distance along the path reached (the path length at the last step within 1 m of it),
 the fraction of episodes without a fall or leaving the path, and the score (mean reward per step
@@ -50,12 +59,13 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from ..backend import NumpyBackend
 from ..evaluation import EpisodeProtocol
-from ..features import self_obs
+from ..features import self_obs, xp
 from ..humanoid.builder import FRICTION
-from ..humanoid.kinematics import forward_kinematics, lowest_point
+from ..humanoid.kinematics import forward_kinematics
 from ..humanoid.skeleton import BODY_NAMES, MEAN_SKELETON
-from ..terrain import make_terrain
+from ..terrain import cell_index, lookup, make_terrain
 from .base import FEET
 from .goal import GoalVecEnv
 
@@ -78,57 +88,80 @@ TERRAIN_LAYOUT = (
 _ticks = np.linspace(-MAP_HALF, MAP_HALF, MAP_SIZE)
 MAP_OFFSETS = np.stack(np.meshgrid(_ticks, _ticks, indexing="ij"), -1).reshape(-1, 2)  # (1024, 2) forward, left
 
+# The functions below take NumPy arrays or torch tensors (the warp backend's) alike.
+
 
 def path_reward(root_xy, point):
     """(reward (N,), xy error (N,)) of pelvis positions against path points (N, 2)."""
+    m = xp(root_xy, point)
     d = root_xy - point
     sq = (d * d).sum(-1)
-    return np.exp(-2.0 * sq), np.sqrt(sq)
+    return m.exp(-2.0 * sq), m.sqrt(sq)
 
 
-def make_paths(start_xy, rng: np.random.Generator, bounds=None):
+def make_paths(start_xy, rng: np.random.Generator, bounds=None, backend=None):
     """(N, 101, 2) paths from start points (N, 2) as REFERENCE section 8 draws them, and their
-    (N, 101) arc lengths; `bounds` (x_min, x_max, y_min, y_max) clamps the vertices."""
+    (N, 101) arc lengths; `bounds` (x_min, x_max, y_min, y_max) clamps the vertices. Draws go
+    through `backend` (`smpl_envs.backend`; NumPy by default) with the generator `rng`."""
+    b = backend or NumpyBackend()
+    m = b.xp
     n = len(start_xy)
     steps = PATH_VERTICES - 1
-    turn = rng.uniform(-0.2, 0.2, (n, steps))
-    sharp = rng.random((n, steps)) < 0.02
-    turn = np.where(sharp, rng.uniform(-np.pi, np.pi, (n, steps)), turn)
-    heading = rng.uniform(-np.pi, np.pi, n)[:, None] + np.concatenate([np.zeros((n, 1)), np.cumsum(turn, 1)[:, :-1]], 1)
-    speed = np.empty((n, steps))
-    speed[:, 0] = rng.uniform(0.0, 3.0, n)
-    change = rng.uniform(-0.2, 0.2, (n, steps))
+    turn = b.uniform(rng, (n, steps), -0.2, 0.2)
+    sharp = b.uniform(rng, (n, steps)) < 0.02
+    turn = m.where(sharp, b.uniform(rng, (n, steps), -np.pi, np.pi), turn)
+    zero = m.zeros_like(turn[:, :1])
+    heading = b.uniform(rng, n, -np.pi, np.pi)[:, None] + m.concatenate([zero, m.cumsum(turn, 1)[:, :-1]], 1)
+    speed = [b.uniform(rng, n, 0.0, 3.0)]
+    change = b.uniform(rng, (n, steps), -0.2, 0.2)
     for k in range(1, steps):  # the clip makes each speed depend on the last: a loop over vertices
-        speed[:, k] = np.clip(speed[:, k - 1] + change[:, k], 0.0, 3.0)
-    moves = (speed * PATH_DT)[..., None] * np.stack([np.cos(heading), np.sin(heading)], -1)
-    path = start_xy[:, None] + np.concatenate([np.zeros((n, 1, 2)), np.cumsum(moves, 1)], 1)
+        speed.append((speed[-1] + change[:, k]).clip(0.0, 3.0))
+    moves = (m.stack(speed, 1) * PATH_DT)[..., None] * m.stack([m.cos(heading), m.sin(heading)], -1)
+    path = start_xy[:, None] + m.concatenate([m.zeros_like(moves[:, :1]), m.cumsum(moves, 1)], 1)
     if bounds is not None:
         x0, x1, y0, y1 = bounds
         path[..., 0] = path[..., 0].clip(x0 + EDGE_MARGIN, x1 - EDGE_MARGIN)
         path[..., 1] = path[..., 1].clip(y0 + EDGE_MARGIN, y1 - EDGE_MARGIN)
-    seg = np.linalg.norm(np.diff(path, axis=1), axis=-1)
-    return path, np.concatenate([np.zeros((n, 1)), np.cumsum(seg, 1)], 1)
+    d = path[:, 1:] - path[:, :-1]
+    seg = m.sqrt((d * d).sum(axis=-1))  # np.linalg.norm's own sum: the same bits
+    # Drawn and summed in float64 on either backend, returned in the backend's float.
+    return b.asarray(path), b.asarray(m.concatenate([m.zeros_like(seg[:, :1]), m.cumsum(seg, 1)], 1))
+
+
+def _arange(n: int, like):
+    m = xp(like)
+    return np.arange(n) if m is np else m.arange(n, device=like.device)
 
 
 def path_at(path, times):
     """Points (N, K, 2) of paths (N, 101, 2) at times (N, K) s, linear between vertices, held at
     the ends."""
-    pos = np.clip(times / PATH_DT, 0.0, PATH_VERTICES - 1.000001)
-    i = pos.astype(np.int64)
+    pos = (times / PATH_DT).clip(0.0, PATH_VERTICES - 1.000001)
+    i = cell_index(pos).clip(max=PATH_VERTICES - 2)  # the bound above rounds up in float32
     f = (pos - i)[..., None]
-    rows = np.arange(len(path))[:, None]
+    rows = _arange(len(path), path)[:, None]
     return path[rows, i] + f * (path[rows, i + 1] - path[rows, i])
+
+
+def map_points(root_pos, heading, offsets=MAP_OFFSETS):
+    """(N, 1024, 2) world xy of the height map's samples around pelvis positions (N, 3), aligned
+    with headings (N, 3, 3); `offsets` (1024, 2): MAP_OFFSETS (as an array of the backend's)."""
+    c, s = heading[:, 0, 0:1], heading[:, 1, 0:1]
+    fx, fy = offsets[:, 0], offsets[:, 1]
+    return xp(root_pos).stack([root_pos[:, :1] + c * fx - s * fy, root_pos[:, 1:2] + s * fx + c * fy], -1)
+
+
+def map_obs(root_pos, ground):
+    """(N, 1024) height map observation from the terrain heights (N, 1024) at `map_points`."""
+    return (root_pos[:, 2:3] - ground).clip(-MAP_CLIP, MAP_CLIP) * MAP_SCALE
 
 
 def height_map(terrain, root_pos, heading):
     """(N, 1024) height map observation of `terrain` (a `smpl_envs.terrain.Terrain`, or None for
     the flat floor) around pelvis positions (N, 3), aligned with headings (N, 3, 3): every world's
     1024 sample points rotated and moved at once, then one batched bilinear lookup."""
-    c, s = heading[:, 0, 0:1], heading[:, 1, 0:1]
-    fx, fy = MAP_OFFSETS[:, 0], MAP_OFFSETS[:, 1]
-    xy = np.stack([root_pos[:, :1] + c * fx - s * fy, root_pos[:, 1:2] + s * fx + c * fy], -1)
-    ground = np.zeros(xy.shape[:-1]) if terrain is None else terrain.height(xy)
-    return np.clip(root_pos[:, 2:3] - ground, -MAP_CLIP, MAP_CLIP) * MAP_SCALE
+    xy = map_points(root_pos, heading)
+    return map_obs(root_pos, np.zeros(xy.shape[:-1]) if terrain is None else terrain.height(xy))
 
 
 def terrain_episode_metrics(log: dict) -> dict:
@@ -151,6 +184,7 @@ class TerrainVecEnv(GoalVecEnv):
 
     task_layout = {"task": TERRAIN_LAYOUT}
     evaluation = EpisodeProtocol(("path_error", "path_length"), terrain_episode_metrics)
+    backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, terrain="mixed", terrain_difficulty="levels", terrain_size=(4, 4),
                  tile_size: float = 20.0, terrain_border: float = 10.0, terrain_seed: int = 0,
@@ -161,14 +195,24 @@ class TerrainVecEnv(GoalVecEnv):
         self.terrain = None if (isinstance(terrain, str) and terrain == "flat") else make_terrain(
             terrain, terrain_difficulty, terrain_size, tile_size, terrain_border, terrain_seed)
         super().__init__(num_envs, **kwargs)
-        n = self.num_envs
-        self.path = np.zeros((n, PATH_VERTICES, 2))
-        self.path_length = np.zeros((n, PATH_VERTICES))
-        self.start_tile = np.zeros(n, np.int64)
-        self._points = np.zeros((n, 1 + PATH_AHEAD, 2))  # the path now and ahead, this step
-        # The rest pose's bodies (pelvis at its standing height), for lifting rest-pose starts.
+        n, b = self.num_envs, self.backend
+        self.path = b.zeros((n, PATH_VERTICES, 2))
+        self.path_length = b.zeros((n, PATH_VERTICES))
+        self.start_tile = b.zeros(n, "int")
+        self._points = b.zeros((n, 1 + PATH_AHEAD, 2))  # the path now and ahead, this step
+        # Host tables on the backend, once (the NumPy backend keeps the very arrays): the height
+        # grids and tile centres, the map's sample offsets, the path's observed times ...
+        if self.terrain is not None:
+            t = self.terrain
+            self._heights, self._dilated, self._centres = b.asarray(t.heights), b.asarray(t.dilated), b.asarray(t.centres)
+        self._map_offsets = b.asarray(MAP_OFFSETS)
+        self._ahead = b.asarray(PATH_AHEAD_DT * np.arange(1 + PATH_AHEAD))
+        # ... the rest pose's bodies (pelvis at its standing height), for lifting rest-pose
+        # starts, and the collision geometry's support points (`lowest_point`).
         ident = np.tile([1.0, 0.0, 0.0, 0.0], (1, len(BODY_NAMES), 1))
-        self._rest = forward_kinematics(self.model.qpos0[self.humanoid.qpos][None, :3], ident, MEAN_SKELETON.offsets)
+        rest = forward_kinematics(self.model.qpos0[self.humanoid.qpos][None, :3], ident, MEAN_SKELETON.offsets)
+        self._rest = tuple(b.asarray(x[0]) for x in rest)
+        self._support = tuple(b.asarray(x) for x in MEAN_SKELETON.support_points())
 
     # ------------------------------------------------------------------ model
     def _configure(self, spec):
@@ -197,52 +241,67 @@ class TerrainVecEnv(GoalVecEnv):
 
     # ------------------------------------------------------------------ terrain reads
     def ground(self, xy, mode: str = "bilinear"):
-        """Terrain heights (...) at world xy (..., 2) (zeros on the flat floor)."""
-        return np.zeros(xy.shape[:-1]) if self.terrain is None else self.terrain.height(xy, mode)
+        """Terrain heights (...) at world xy (..., 2) (zeros on the flat floor), arrays of the
+        env's backend; `mode` as `smpl_envs.terrain.Terrain.height`."""
+        if self.terrain is None:
+            return self.backend.zeros(tuple(xy.shape[:-1]))
+        t = self.terrain
+        if mode == "dilated":  # the highest terrain within 0.3 m of the point
+            return lookup(self._dilated, xy, t.x0, t.y0, "max")
+        return lookup(self._heights, xy, t.x0, t.y0, mode)
 
     def height_map(self, root_pos, heading):
         """(N, 1024) observation of the terrain around pelvis positions (N, 3), heading-aligned."""
-        return height_map(self.terrain, root_pos, heading)
+        return map_obs(root_pos, self.ground(map_points(root_pos, heading, self._map_offsets)))
+
+    def _lowest_point(self, pos, quat):
+        """`kinematics.lowest_point(pos, quat, MEAN_SKELETON)` on the backend's arrays: the height
+        (n,) of the lowest point of the collision geometry of poses (n, 24, 3), (n, 24, 4)."""
+        m = self.backend.xp
+        q = self.backend.asarray(quat)  # float64 on the host, as lowest_point computes
+        w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+        row = m.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)
+        points, radii = self._support
+        return m.amin(pos[..., None, 2] + m.einsum("...bj,bkj->...bk", row, points) - radii, (-1, -2))
 
     # ------------------------------------------------------------------ episodes
     def _reset_task(self, ids, options):
         qpos, qvel = super()._reset_task(ids, options)  # pelvis over the origin
-        rng = self.np_random
-        n = len(ids)
+        b, rng, n = self.backend, self.np_random, len(ids)
         if self.terrain is None:
-            spawn = np.zeros((n, 2))
+            spawn = b.zeros((n, 2))
             self.start_tile[ids] = 0
         else:
-            tile = rng.integers(0, len(self.terrain.centres), n)
+            tile = b.integers(rng, 0, len(self._centres), n)
             self.start_tile[ids] = tile
-            spawn = self.terrain.centres[tile] + rng.uniform(-SPAWN_JITTER, SPAWN_JITTER, (n, 2))
+            spawn = b.asarray(self._centres[tile] + b.uniform(rng, (n, 2), -SPAWN_JITTER, SPAWN_JITTER))
         root = self.humanoid.qpos.start
         # The start pose's bodies, as it would stand on z = 0 over the spawn point.
         if self.motion_lib is None:
-            pos, quat = np.repeat(self._rest[0], n, 0), np.repeat(self._rest[1], n, 0)
+            pos, quat = b.rows(self._rest[0], n), b.rows(self._rest[1], n)
         else:
             frames = self.start_frame[ids]
-            pos, quat = self.motion_lib.body_pos[frames], self.motion_lib.body_quat[frames]
-        pos = pos.copy()
+            pos, quat = self.motion_frames.body_pos[frames], self.motion_frames.body_quat[frames]
+        pos = b.copy(pos)
         pos[..., :2] += (spawn - pos[:, 0, :2])[:, None]
         # Lift: the pose's lowest point above the highest terrain within 0.3 m of any body.
-        top = self.ground(pos[..., :2], "dilated").max(-1)
-        lift = top - np.minimum(lowest_point(pos, quat, MEAN_SKELETON), 0.0) + LIFT_MARGIN
+        top = b.xp.amax(self.ground(pos[..., :2], "dilated"), -1)
+        lift = top - self._lowest_point(pos, quat).clip(max=0.0) + LIFT_MARGIN
         qpos[:, root:root + 2] = spawn
         qpos[:, root + 2] += lift
         bounds = None if self.terrain is None else self.terrain.extent
-        self.path[ids], self.path_length[ids] = make_paths(spawn, rng, bounds)
+        self.path[ids], self.path_length[ids] = make_paths(spawn, rng, bounds, b)
         self._refresh_points(ids)
         return qpos, qvel
 
     def _refresh_points(self, ids=None):
         """The path's points now and 0.5-5 s ahead, from each world's clock."""
-        ids = np.arange(self.num_envs) if ids is None else ids
-        t = self.elapsed[ids, None] / 30.0 + PATH_AHEAD_DT * np.arange(1 + PATH_AHEAD)
+        ids = self.backend.arange(self.num_envs) if ids is None else ids
+        t = self.elapsed[ids, None] / 30.0 + self._ahead
         self._points[ids] = path_at(self.path[ids], t)
 
     def _advance(self, active):
-        self._refresh_points(None if active is None else np.flatnonzero(active))
+        self._refresh_points(None if active is None else self.backend.nonzero(active))
 
     def _fallen(self, body):
         # Heights above the lowest sample around each body, so a hand beside a pole or a step's
@@ -255,32 +314,35 @@ class TerrainVecEnv(GoalVecEnv):
     def _evaluate(self, body, heading):
         reward, error = path_reward(body.pos[:, 0, :2], self._points[:, 0])
         terminated = self._fallen(body) | (error > self.off_path_distance)
-        return reward, {"path": reward}, terminated, np.zeros(self.num_envs, bool)
+        return reward, {"path": reward}, terminated, self.backend.zeros(self.num_envs, "bool")
 
     def _observe(self, body, heading):
+        m = self.backend.xp
         root = body.pos[:, 0]
         obs = self_obs(body, heading)
         obs[:, 0] = root[:, 2] - self.ground(root[:, :2])
         c, s = heading[:, 0, 0:1], heading[:, 1, 0:1]
         d = self._points[:, 1:] - root[:, None, :2]
-        ahead = np.stack([c * d[..., 0] + s * d[..., 1], c * d[..., 1] - s * d[..., 0]], -1).reshape(len(root), -1)
-        return np.concatenate([obs, ahead, self.height_map(root, heading)], -1)
+        ahead = m.stack([c * d[..., 0] + s * d[..., 1], c * d[..., 1] - s * d[..., 0]], -1).reshape(len(root), -1)
+        return m.concatenate([obs, ahead, self.height_map(root, heading)], -1)
 
     def _task_info(self, body):
+        b = self.backend
         _, error = path_reward(body.pos[:, 0, :2], self._points[:, 0])
         t = self.elapsed / 30.0 / PATH_DT
-        i = np.minimum(t.astype(np.int64), PATH_VERTICES - 2)
-        f = np.clip(t - i, 0.0, 1.0)
-        rows = np.arange(self.num_envs)
+        i = b.asarray(t, "int").clip(max=PATH_VERTICES - 2)
+        f = (t - i).clip(0.0, 1.0)
+        rows = b.arange(self.num_envs)
         length = self.path_length[rows, i] + f * (self.path_length[rows, i + 1] - self.path_length[rows, i])
-        return {"path_error": error, "path_point": self._points[:, 0].copy(), "path_length": length,
-                "start_tile": self.start_tile.copy()}
+        return {"path_error": error, "path_point": b.copy(self._points[:, 0]), "path_length": length,
+                "start_tile": b.copy(self.start_tile)}
 
     def _markers(self, world):
         # The current point (orange) and the ten ahead (green), 0.1 m above the terrain.
-        pts = self._points[world]
-        pos = np.concatenate([pts, self.ground(pts)[:, None] + 0.1], -1)
+        pts = np.asarray(self.backend.to_numpy(self._points[world]), np.float64)
+        ground = np.zeros(len(pts)) if self.terrain is None else self.terrain.height(pts)
+        pos = np.concatenate([pts, ground[:, None] + 0.1], -1)
         return [(pos[:1], (1.0, 0.55, 0.1, 0.95), 0.06), (pos[1:], (0.2, 0.85, 0.3, 0.9), 0.04)]
 
 
-__all__ = ["TerrainVecEnv", "height_map", "path_reward", "make_paths", "path_at"]
+__all__ = ["TerrainVecEnv", "height_map", "map_obs", "map_points", "path_reward", "make_paths", "path_at"]

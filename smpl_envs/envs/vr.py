@@ -52,6 +52,11 @@ joint angles, so only full-body clips have it.
 Evaluation (`smpl_envs.evaluate`, `smpl-envs eval`): `smpl_envs.evaluation.ThreePointProtocol`,
 every clip or stream once from its first frame; success = no point beyond 0.5 m at any frame;
 E_g-mpjpe, E_acc, E_vel of the three points, and of the full body where known.
+
+Backends: "cpu" (MuJoCo, NumPy) and "warp" (MuJoCo Warp, torch tensors on `device`;
+`smpl_envs.backend`), one code path: the task functions below take NumPy arrays or torch tensors,
+and on the warp backend the tracker reads the clips' `DeviceFrames` or the streams'
+`DeviceStreams` (the stream start poses are built on the device too).
 """
 
 from __future__ import annotations
@@ -60,10 +65,9 @@ import mujoco
 import numpy as np
 
 from ..evaluation import ThreePointProtocol
-from ..features import BodyState, body_goal_obs, goal_layout, self_obs
+from ..features import BodyState, body_goal_obs, goal_layout, self_obs, xp
 from ..humanoid.skeleton import BODY_NAMES
-from ..motion.three_point import TRACKED, as_three_point_lib
-from ..rotations import quat_mul, yaw_quat
+from ..motion.three_point import TRACKED, DeviceStreams, as_three_point_lib
 from .base import HumanoidVecEnv, load_motions
 from .imitation import ENERGY_WEIGHT, imitation_reward, set_tracking_settings
 from .reference import RESIDUAL_SCALE, ReferenceTracker
@@ -89,7 +93,7 @@ def tracked(state: BodyState) -> BodyState:
 def point_distance(sim_pos, ref_pos):
     """(N, 3) distances (m) between the simulated and reference head and hands."""
     d = ref_pos - sim_pos
-    return np.sqrt((d * d).sum(axis=-1))
+    return xp(d).sqrt((d * d).sum(axis=-1))
 
 
 def vr_terminated(sim_pos, ref_pos, distance=TERMINATION_DISTANCE):
@@ -99,7 +103,17 @@ def vr_terminated(sim_pos, ref_pos, distance=TERMINATION_DISTANCE):
 
 def yaw_of(rot):
     """(N,) heading angle of rotation matrices (N, 3, 3): the direction of their x axis."""
-    return np.arctan2(rot[:, 1, 0], rot[:, 0, 0])
+    return xp(rot).arctan2(rot[:, 1, 0], rot[:, 0, 0])
+
+
+def turn_about_z(yaw, quat):
+    """Unit quaternions `quat` (..., 4, wxyz) turned about world z by the angles `yaw`:
+    quat_mul(yaw_quat(yaw), quat) with the yaw quaternion's zero terms left out (the same
+    products, so the same float64 values), for NumPy and torch."""
+    m = xp(yaw, quat)
+    c, s = m.cos(yaw / 2), m.sin(yaw / 2)
+    w, x, y, z = quat[..., 0], quat[..., 1], quat[..., 2], quat[..., 3]
+    return m.stack([c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w], -1)
 
 
 # ---------------------------------------------------------------------- environment
@@ -113,11 +127,13 @@ class VRTrackingVecEnv(HumanoidVecEnv):
     stream_start_pose ("stand": a clip name or file whose first frame streams start from, or
     "rest"), grace_steps (steps after a reset without the termination test; None: 0 for clips,
     STREAM_GRACE_STEPS for streams), and the core's (start, beginning_share, cache, max_episode_steps, autoreset_mode,
-    substeps, num_threads, render_mode, render_size, render_world, show_markers).
+    substeps, num_threads, render_mode, render_size, render_world, show_markers, backend,
+    device).
     """
 
     task_layout = {"goal": VR_GOAL_LAYOUT}
     evaluation = ThreePointProtocol()
+    backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, motions="walk", reward: str = "auto",
                  reward_weights: dict | None = None, reward_scales: dict | None = None,
@@ -146,9 +162,15 @@ class VRTrackingVecEnv(HumanoidVecEnv):
         self.grace_steps = int(grace_steps)
         self.reward_mode = ("three_point" if self.streams is not None else "full") if reward == "auto" else reward
         super().__init__(num_envs, motions=None if self.streams is not None else motions, **kwargs)
-        self.ref = ReferenceTracker(self.motion_lib if self.streams is None else self.streams, self.num_envs)
+        # What the step reads of the streams: the library itself on the host, its tensors on the device.
+        self.stream_frames = self.streams
+        if self.streams is not None and self.backend.name != "cpu":
+            self.stream_frames = DeviceStreams(self.streams, self.backend.device)
+        self.ref = ReferenceTracker(self.motion_frames if self.streams is None else self.stream_frames,
+                                    self.num_envs, self.backend)
         if self.streams is not None:
-            self._start_pose, self._start_head, self._start_yaw = self._standing_pose(stream_start_pose)
+            pose, head, self._start_yaw = self._standing_pose(stream_start_pose)
+            self._start_pose, self._start_head = self.backend.asarray(pose), self.backend.asarray(head)
 
     @property
     def references(self):
@@ -180,19 +202,20 @@ class VRTrackingVecEnv(HumanoidVecEnv):
     def _stream_start(self, ids, motion_ids, start):
         """Full-model (qpos, qvel) of worlds `ids` starting on streams: the standing pose turned
         about z to the stream head's heading and moved under the stream head (xy)."""
-        lib, n = self.streams, len(ids)
+        b, xp = self.backend, self.backend.xp
+        lib, n = self.stream_frames, len(ids)
         motion_ids, frames = self.start_frames(lib, n, motion_ids, start)
         self.start_motion[ids], self.start_frame[ids] = motion_ids, frames
-        turn = yaw_of(lib.rot[frames, 0].astype(np.float64)) - self._start_yaw
-        c, s = np.cos(turn), np.sin(turn)
+        turn = yaw_of(b.asarray(lib.rot[frames, 0])) - self._start_yaw
+        c, s = xp.cos(turn), xp.sin(turn)
         root = self._start_pose[:3] - self._start_head  # pelvis seen from the head
-        pose = np.tile(self._start_pose, (n, 1))
+        pose = b.rows(self._start_pose, n)
         pose[:, 0] = lib.pos[frames, 0, 0] + c * root[0] - s * root[1]
         pose[:, 1] = lib.pos[frames, 0, 1] + s * root[0] + c * root[1]
-        pose[:, 3:7] = quat_mul(yaw_quat(turn), self._start_pose[3:7])
-        qpos = np.tile(self.model.qpos0, (n, 1))
+        pose[:, 3:7] = turn_about_z(turn, self._start_pose[3:7])
+        qpos = b.rows(self._qpos0, n)
         qpos[:, self.humanoid.qpos] = pose
-        return qpos, np.zeros((n, self.model.nv))
+        return qpos, b.zeros((n, self.model.nv))
 
     # ------------------------------------------------------------------ task hooks
     def _reset_task(self, ids, options):
@@ -221,7 +244,7 @@ class VRTrackingVecEnv(HumanoidVecEnv):
         else:
             reward, terms = imitation_reward(tracked(body), ref_points, self.sim.actuator_force,
                                              self.reward_weights, self.reward_scales, self.energy_weight)
-        terminated = (np.zeros(self.num_envs, bool) if self.termination_distance is None
+        terminated = (self.backend.zeros(self.num_envs, "bool") if self.termination_distance is None
                       else vr_terminated(body.pos[:, TRACKED], ref_points.pos, self.termination_distance))
         if self.grace_steps:
             terminated &= self.elapsed >= self.grace_steps
@@ -229,21 +252,23 @@ class VRTrackingVecEnv(HumanoidVecEnv):
 
     def _observe(self, body, heading):
         goal = body_goal_obs(body, self._points(self.ref.next()), TRACKED, heading)
-        return np.concatenate([self_obs(body, heading), goal], -1)
+        return self.backend.xp.concatenate([self_obs(body, heading), goal], -1)
 
     def _task_info(self, body):
         ref = self.ref.current()
+        b = self.backend
         sim_points, ref_points = body.pos[:, TRACKED], self._points(ref).pos
-        info = {"motion_id": self.ref.motion_id.copy(), "motion_time": self.ref.motion_time(),
-                "point_pos": sim_points.astype(np.float32), "ref_point_pos": ref_points.copy(),
+        info = {"motion_id": b.copy(self.ref.motion_id), "motion_time": self.ref.motion_time(),
+                "point_pos": b.float32(sim_points), "ref_point_pos": b.copy(ref_points),
                 "point_error": point_distance(sim_points, ref_points)}
         if self.streams is None:
-            info["ref_body_pos"] = ref.pos.copy()  # a copy: the tracker caches the array
+            info["ref_body_pos"] = b.copy(ref.pos)  # a copy: the tracker caches the array
         return info
 
     def _markers(self, world):
-        return [(self.references.body_pos[self.ref.frame[world]][TRACKED] if self.streams is None
-                 else self.streams.pos[self.ref.frame[world]], MARKER_RGBA, 0.05)]
+        frame = int(self.ref.frame[world])  # drawn from the host library on either backend
+        return [(self.references.body_pos[frame][TRACKED] if self.streams is None
+                 else self.streams.pos[frame], MARKER_RGBA, 0.05)]
 
     def reference_action(self) -> np.ndarray:
         """(N, 69) actions whose PD targets are the next reference frame's joint angles (clips

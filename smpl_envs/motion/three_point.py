@@ -162,8 +162,9 @@ def write_stream(path: str | os.PathLike, positions, rotations, *, fps: float = 
 class ThreePointLib:
     """Many streams concatenated along frames, looked up by global frame like a `MotionLib`
     (the interface `ReferenceTracker` reads: names, lengths, starts, fps, num_motions,
-    body_state(frames)); arrays float32: pos (F, 3, 3), quat (F, 3, 4), rot (F, 3, 3, 3),
-    lin_vel, ang_vel (F, 3, 3), world frame."""
+    body_state(frames)); arrays float32: pos (F, 3, 3), quat (F, 3, 4), lin_vel, ang_vel
+    (F, 3, 3), and rot (F, 3, 3, 3) float64 (computed from quat), world frame. `DeviceStreams`
+    is its view on a torch device for an env on the MuJoCo Warp backend."""
 
     def __init__(self, streams: Iterable[ThreePointStream]):
         streams = list(streams)
@@ -217,6 +218,32 @@ class ThreePointLib:
         angles: dof_pos and dof_vel are None)."""
         return BodyState(pos=self.pos[frames], rot=self.rot[frames], lin_vel=self.lin_vel[frames],
                          ang_vel=self.ang_vel[frames], dof_pos=None, dof_vel=None)
+
+
+# What a ThreePointLib stores per frame (its `body_state` reads these).
+STREAM_FIELDS = ("pos", "quat", "rot", "lin_vel", "ang_vel")
+
+
+class DeviceStreams:
+    """A ThreePointLib's per-frame arrays as float32 torch tensors on `device`: what an env on
+    the MuJoCo Warp backend reads every step (three-point states, stream bounds), with the
+    library's own `body_state` (it only indexes arrays). Names, weights and everything else stay
+    on the host library, `lib` (as `motion.library.DeviceFrames` for a MotionLib)."""
+
+    body_state = ThreePointLib.body_state
+
+    def __init__(self, lib: ThreePointLib, device):
+        import torch
+
+        self.lib, self.fps, self.num_motions = lib, lib.fps, lib.num_motions
+        for name in STREAM_FIELDS:
+            setattr(self, name, torch.as_tensor(getattr(lib, name), dtype=torch.float32, device=device))
+        self.starts = torch.as_tensor(lib.starts, dtype=torch.int64, device=device)
+        self.lengths = torch.as_tensor(lib.lengths, dtype=torch.int64, device=device)
+
+    @property
+    def weights(self) -> np.ndarray:
+        return self.lib.weights  # the host library's
 
 
 def as_three_point_lib(source) -> ThreePointLib | None:

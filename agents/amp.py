@@ -137,35 +137,43 @@ class StyleWindows(RolloutHooks):
         self.reference_windows = reference_windows
         self.num_frames, self.frame_dim = num_frames, frame_dim
         self.autoreset, self.device = autoreset, device
-        self.history: np.ndarray | None = None  # (n_envs, num_frames, frame_dim)
+        self.history: torch.Tensor | None = None  # (n_envs, num_frames, frame_dim)
         self.windows: torch.Tensor | None = None  # the buffer's field being filled
 
-    def _restart(self, info: dict, ids: np.ndarray) -> np.ndarray:
-        return self.reference_windows(info["motion_id"][ids], info["motion_time"][ids]).reshape(
+    def _restart(self, info: dict, ids: np.ndarray) -> torch.Tensor:
+        # The demo windows come from the host library, once per episode start (a NumPy lookup).
+        motion_id, motion_time = (_host(info[k])[ids] for k in ("motion_id", "motion_time"))
+        windows = self.reference_windows(motion_id, motion_time)
+        return torch.as_tensor(windows, dtype=torch.float32, device=self.device).reshape(
             len(ids), self.num_frames, self.frame_dim)
 
     def on_reset(self, info: dict) -> None:
         _require_amp_obs(info)
-        if not isinstance(info["amp_obs"], np.ndarray):
-            raise NotImplementedError("AMP keeps its discriminator windows in NumPy: it trains on NumPy envs "
-                                      "(smpl_envs' backend='cpu') so far, not on torch-native ones")
         self.history = self._restart(info, np.arange(len(info["amp_obs"])))
 
     def on_rollout_start(self, buffer: RolloutBuffer) -> None:
         self.windows = buffer.extra(WINDOWS, self.num_frames * self.frame_dim)
 
-    def on_step(self, t: int, info: dict, done: np.ndarray, valid: np.ndarray) -> None:
+    def on_step(self, t: int, info: dict, done, valid) -> None:
+        """`done` and `valid` come as the env's arrays (NumPy, or tensors of a torch-native env);
+        the history stays a tensor on the agent's device either way."""
         _require_amp_obs(info)
-        frame = final_info_array(info, "amp_obs", done, self.autoreset)
+        frame = torch.as_tensor(final_info_array(info, "amp_obs", done, self.autoreset), dtype=torch.float32,
+                                device=self.device)
+        live = torch.as_tensor(valid, device=self.device)
         h = self.history
-        h[valid] = np.concatenate([h[valid, 1:], frame[valid, None]], axis=1)
-        self.windows[t] = torch.as_tensor(h.reshape(len(h), -1), device=self.device)
+        h[live] = torch.cat([h[live, 1:], frame[live, None]], 1)
+        self.windows[t] = h.reshape(len(h), -1)
         # Worlds that start a new episode now: NextStep resets on the step after `done` (the
         # invalid ones), SameStep within the `done` step; both report the new episode's state.
-        fresh = ~valid if self.autoreset == AutoresetMode.NEXT_STEP else done
+        fresh = ~live if self.autoreset == AutoresetMode.NEXT_STEP else torch.as_tensor(done, device=self.device)
         if fresh.any():
-            ids = np.flatnonzero(fresh)
-            h[ids] = self._restart(info, ids)
+            ids = np.flatnonzero(fresh.cpu().numpy())
+            h[torch.as_tensor(ids, device=self.device)] = self._restart(info, ids)
+
+
+def _host(x) -> np.ndarray:
+    return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
 
 
 def _require_amp_obs(info: dict) -> None:

@@ -69,6 +69,11 @@ def final_info_array(info: dict, key: str, done: np.ndarray, mode: AutoresetMode
     """`info[key]` as it was at the end of each world's step (before a SameStep reset)."""
     if key not in info:
         return None
+    if not isinstance(info[key], np.ndarray) and hasattr(info[key], "detach"):  # a torch-native env
+        value, final = info[key], info.get("final_info")
+        if mode == AutoresetMode.SAME_STEP and done.any() and isinstance(final, dict) and key in final:
+            value = final[key].where(done.reshape(-1, *[1] * (value.dim() - 1)), value)
+        return value
     value = np.asarray(info[key])
     if mode == AutoresetMode.SAME_STEP and done.any() and "final_info" in info:
         final = info["final_info"]

@@ -287,3 +287,14 @@ def test_every_task_runs_on_the_warp_backend(env_id):
     single = gym.make(env_id, backend="warp", device="cpu", start="beginning", **kw)
     check_env_quietly(single)
     single.close()
+
+
+def test_amp_trains_on_the_warp_backend(env):
+    from agents import AMP
+
+    model = AMP(env, n_steps=8, batch_size=16, n_epochs=1, seed=0, verbose=0, tensorboard=False, device="cpu",
+                actor_hidden=[32], critic_hidden=[32], disc_hidden=[32])
+    model.learn(8 * N * 2, progress_bar=False)
+    assert model.num_timesteps == 64 and model._collector.native
+    windows = model.rollout_buffer.extras["amp_windows"]
+    assert torch.isfinite(windows).all() and windows.abs().sum() > 0

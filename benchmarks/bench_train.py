@@ -1,15 +1,17 @@
 """Training throughput against the env's own stepping rate, measured side by side in one run.
 
-    python benchmarks/bench_train.py [--worlds 32] [--iterations 5] [--repeats 3] [--threads 1]
+    python benchmarks/bench_train.py [--worlds N] [--iterations 5] [--repeats 3] [--threads 1]
+    python benchmarks/bench_train.py --ppo-recipe walk_residual_ppo --update-threads 2   # 64 worlds
 
-Three rates at the same number of worlds N, each repeat measuring all three in turn (so load on the
-machine hits them alike), reported as medians of `--repeats`:
+Three rates at the same number of worlds N (default: the PPO recipe's num_envs), each repeat
+measuring all three in turn (so load on the machine hits them alike), reported as medians of
+`--repeats`:
 
 - env: `gym.make_vec(id, num_envs=N, **recipe env kwargs)` stepped with uniformly random actions
   (drawn up front, not timed) for as many steps per world as the agents collect, N x steps / s;
-- PPO: the `imitation_ppo` recipe's agent (its env id, env kwargs and hyperparameters) training on
-  N worlds, samples/s over whole iterations (rollout collection + update + logging), after one
-  untimed warm-up iteration (first reset, allocations);
+- PPO: the `--ppo-recipe`'s agent (default `imitation_ppo`; its env id, env kwargs and
+  hyperparameters) training on N worlds, samples/s over whole iterations (rollout collection +
+  update + logging), after one untimed warm-up iteration (first reset, allocations);
 - AMP: the same with the `imitation_amp` recipe (discriminator update and style reward included).
 
 It prints PPO/env (the share of the env's rate training keeps) and AMP/PPO (what AMP's extras
@@ -63,7 +65,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--ppo-recipe", default="imitation_ppo")
     p.add_argument("--amp-recipe", default="imitation_amp")
-    p.add_argument("--worlds", type=int, default=32, help="worlds N (default: 32, the recipes' num_envs)")
+    p.add_argument("--worlds", type=int, default=None, help="worlds N (default: the PPO recipe's num_envs)")
     p.add_argument("--iterations", type=int, default=5, help="timed training iterations per repeat")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
@@ -74,6 +76,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     ppo_recipe, amp_recipe = load_recipe(args.ppo_recipe), load_recipe(args.amp_recipe)
     env_id = ppo_recipe["env"]["id"]
+    args.worlds = args.worlds or ppo_recipe["env"]["num_envs"]
     if amp_recipe["env"]["id"] != env_id:
         raise SystemExit(f"the recipes train on different envs: {env_id} and {amp_recipe['env']['id']}")
 

@@ -298,3 +298,17 @@ def test_amp_trains_on_the_warp_backend(env):
     assert model.num_timesteps == 64 and model._collector.native
     windows = model.rollout_buffer.extras["amp_windows"]
     assert torch.isfinite(windows).all() and windows.abs().sum() > 0
+
+
+def test_the_command_line_trains_evaluates_and_records_on_the_warp_backend(tmp_path):
+    from agents import load
+    from agents.cli import main
+
+    run = tmp_path / "run"
+    code = main(["train", "demo_walk_ppo", "--threads", "1", "--run-dir", str(run), "--quiet",
+                 "--set", "env.kwargs.backend=warp", "--set", "env.kwargs.device=cpu", "--set", "env.num_envs=4",
+                 "--set", "train.total_timesteps=256", "--set", "eval.every=0", "--set", "video.steps=5"])
+    assert code == 0
+    assert load(run / "checkpoints" / "last.pt").env_kwargs["backend"] == "warp"  # evaluated and recorded so too
+    assert (run / "eval.json").is_file() and (run / "videos" / "final.mp4").stat().st_size > 1000
+    assert main(["eval", str(run), "--no-progress", "--out", str(tmp_path / "e.json")]) == 0

@@ -66,3 +66,30 @@ def seeded_rollouts(env, seeds=(3, 3, 4), steps: int = 20):
             out += [obs, rew, term, trunc]
         runs.append((out, info))
     return runs
+
+
+def step_backends_alike(warp_env, cpu_env, steps: int = 10, scale: float = 0.3, info_keys=(),
+                        tol=lambda k: 1e-3 if k < 3 else 1e-2, seed: int = 0) -> int:
+    """Step an env on the warp backend and its CPU twin with the same random actions in
+    [-scale, scale] and assert they agree at every step: observations and rewards within
+    `tol(step)`, the `info_keys` within 10x that, the same terminations and truncations, the same
+    clips and clip times where the task reports them. Returns how many CPU episodes terminated."""
+    import torch
+
+    rng, n, ended = np.random.default_rng(seed), cpu_env.num_envs, 0
+    for k in range(steps):
+        a = rng.uniform(-scale, scale, (n, 69)).astype(np.float32)
+        ow, rw, tw, uw, iw = warp_env.step(torch.as_tensor(a))
+        oc, rc, tc, uc, ic = cpu_env.step(a)
+        assert isinstance(ow, torch.Tensor) and ow.shape == oc.shape
+        t = tol(k)
+        assert np.abs(ow.numpy() - oc).max() < t, k
+        assert np.abs(rw.numpy() - rc).max() < t, k
+        assert tw.tolist() == tc.tolist() and uw.tolist() == uc.tolist(), k
+        for key in info_keys:
+            assert np.abs(iw[key].numpy() - ic[key]).max() < 10 * t, (k, key)
+        if "motion_id" in ic:
+            np.testing.assert_array_equal(iw["motion_id"].numpy(), ic["motion_id"])
+            np.testing.assert_allclose(iw["motion_time"].numpy(), ic["motion_time"], atol=1e-6)
+        ended += int(tc.sum())
+    return ended

@@ -370,7 +370,7 @@ def test_warp_backend_agrees_with_the_cpu_backend(warp_env):
     lib = c.motion_lib
     frames = np.arange(0, len(lib.body_pos), 7)[:40]
     pos, quat = lib.body_pos[frames], lib.body_quat[frames]
-    low = w._lowest_point(torch.as_tensor(pos), torch.as_tensor(quat)).numpy()
+    low = lowest_point(torch.as_tensor(pos), torch.as_tensor(quat), MEAN_SKELETON, w._support).numpy()
     np.testing.assert_allclose(low, lowest_point(pos, quat, MEAN_SKELETON), atol=1e-5)
     xy = np.random.default_rng(1).uniform(-9, 9, (50, 2))
     for mode in ("bilinear", "min", "max", "dilated"):

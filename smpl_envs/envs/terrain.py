@@ -63,7 +63,7 @@ from ..backend import NumpyBackend
 from ..evaluation import EpisodeProtocol
 from ..features import self_obs, xp
 from ..humanoid.builder import FRICTION
-from ..humanoid.kinematics import forward_kinematics
+from ..humanoid.kinematics import forward_kinematics, lowest_point
 from ..humanoid.skeleton import BODY_NAMES, MEAN_SKELETON
 from ..terrain import cell_index, lookup, make_terrain
 from .base import FEET
@@ -254,16 +254,6 @@ class TerrainVecEnv(GoalVecEnv):
         """(N, 1024) observation of the terrain around pelvis positions (N, 3), heading-aligned."""
         return map_obs(root_pos, self.ground(map_points(root_pos, heading, self._map_offsets)))
 
-    def _lowest_point(self, pos, quat):
-        """`kinematics.lowest_point(pos, quat, MEAN_SKELETON)` on the backend's arrays: the height
-        (n,) of the lowest point of the collision geometry of poses (n, 24, 3), (n, 24, 4)."""
-        m = self.backend.xp
-        q = self.backend.asarray(quat)  # float64 on the host, as lowest_point computes
-        w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-        row = m.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)
-        points, radii = self._support
-        return m.amin(pos[..., None, 2] + m.einsum("...bj,bkj->...bk", row, points) - radii, (-1, -2))
-
     # ------------------------------------------------------------------ episodes
     def _reset_task(self, ids, options):
         qpos, qvel = super()._reset_task(ids, options)  # pelvis over the origin
@@ -286,7 +276,7 @@ class TerrainVecEnv(GoalVecEnv):
         pos[..., :2] += (spawn - pos[:, 0, :2])[:, None]
         # Lift: the pose's lowest point above the highest terrain within 0.3 m of any body.
         top = b.xp.amax(self.ground(pos[..., :2], "dilated"), -1)
-        lift = top - self._lowest_point(pos, quat).clip(max=0.0) + LIFT_MARGIN
+        lift = top - lowest_point(pos, quat, MEAN_SKELETON, self._support).clip(max=0.0) + LIFT_MARGIN
         qpos[:, root:root + 2] = spawn
         qpos[:, root + 2] += lift
         bounds = None if self.terrain is None else self.terrain.extent

@@ -25,8 +25,17 @@ def forward_kinematics(
     return np.stack(pos, -2), np.stack(quat, -2)
 
 
-def lowest_point(body_pos: np.ndarray, body_quat: np.ndarray, skeleton: Skeleton) -> np.ndarray:
-    """Height (...,) of the lowest point of the humanoid's collision geometry in each frame."""
-    points, radii = skeleton.support_points()  # (24, K, 3), (24, K)
-    z = body_pos[..., None, 2] + np.einsum("...bj,bkj->...bk", quat_z_axis_row(body_quat), points)
-    return (z - radii).min(axis=(-1, -2))
+def lowest_point(body_pos: np.ndarray, body_quat: np.ndarray, skeleton: Skeleton, support=None) -> np.ndarray:
+    """Height (...,) of the lowest point of the humanoid's collision geometry in each frame.
+    NumPy arrays, or torch tensors with `support`: `skeleton.support_points()` as tensors on
+    their device (an env converts them once)."""
+    points, radii = skeleton.support_points() if support is None else support  # (24, K, 3), (24, K)
+    if isinstance(body_pos, np.ndarray):
+        z = body_pos[..., None, 2] + np.einsum("...bj,bkj->...bk", quat_z_axis_row(body_quat), points)
+        return (z - radii).min(axis=(-1, -2))
+    import torch
+
+    w, x, y, zq = body_quat.double().unbind(-1)  # float64, as quat_z_axis_row computes
+    row = torch.stack([2 * (x * zq - w * y), 2 * (y * zq + w * x), 1 - 2 * (x * x + y * y)], -1)
+    z = body_pos[..., None, 2] + torch.einsum("...bj,bkj->...bk", row.to(points.dtype), points)
+    return torch.amin(z - radii, (-1, -2))

@@ -42,3 +42,15 @@ def test_every_shipped_file_is_a_loadable_policy():
         assert path.stat().st_size < 8_000_000, name   # a few MB each
         model = agents.load(path)
         assert model.env_id is not None and model.env_kwargs, name
+
+
+def test_shipped_clips_policy_tracks_the_flight_clips():
+    # The all-clips policy (README: every clip succeeds) through the evaluation protocol on the
+    # two clips that were learnt last: a change to the env that breaks it fails here.
+    import smpl_envs
+
+    policy = agents.load(find_checkpoint("clips"), device="cpu")
+    result = smpl_envs.evaluate(policy, "SMPL/Imitation-v0", motions=["run", "jump"], num_envs=2, progress=False,
+                                env_kwargs={"action_mode": "residual", "residual_scale": 0.25})
+    assert result.summary["success_rate"] == 1.0, result.rows
+    assert result.summary["mpjpe_g"] < 100.0

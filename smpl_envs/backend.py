@@ -11,13 +11,13 @@ draws) go through a backend, so `HumanoidVecEnv` has one code path for both:
 | `"cpu"` (default) | `CPUSim`, MuJoCo on a thread pool | NumPy | float64 (observations float32) | the env's NumPy generator |
 | `"warp"` | `WarpSim`, MuJoCo Warp on `device` | torch tensors on `device` | float32 | a torch generator on `device`, seeded from the NumPy one |
 
-Porting a task to the torch backend: per-world state from `backend.zeros / full / asarray`;
+Porting a task to the torch backend: per-world state from `backend.zeros / asarray`;
 `xp = backend.xp` for module functions (`xp.where`, `xp.stack`, `xp.concatenate`, `xp.cos`,
 `xp.minimum` of two arrays); methods both share (`.clip`, `.sum(axis=)`, `.any(axis=)`,
 `.reshape`, `.swapaxes`); `backend.copy` for `.copy()`, `backend.float32` for
 `.astype(np.float32)`, `backend.nonzero` for `np.flatnonzero`, `backend.rows` for `np.tile` of a
 row; `xp.amax(x, axis)` (not `.max`, which is a pair in torch); random draws through the backend
-with the env's `np_random` (`uniform`, `integers`, `normal`, `choice`). Constants may stay NumPy
+with the env's `np_random` (`uniform`, `integers`, `choice`). Constants may stay NumPy
 where they only index or scale (torch converts them); a table used in arithmetic is converted once.
 
 Why torch for the device path, and not an array-API layer: the agents are torch, so observations,
@@ -67,10 +67,6 @@ class NumpyBackend:
         return x[None].repeat(n, axis=0)
 
     @staticmethod
-    def full(shape, value):
-        return np.full(shape, value, dtype=np.float64)
-
-    @staticmethod
     def arange(n: int):
         return np.arange(n)
 
@@ -85,10 +81,6 @@ class NumpyBackend:
     def integers(rng: np.random.Generator, low: int, high: int, size):
         """Integers in [low, high)."""
         return rng.integers(low, high, size)
-
-    @staticmethod
-    def normal(rng: np.random.Generator, size, scale: float = 1.0):
-        return rng.normal(0.0, scale, size)
 
     @staticmethod
     def choice(rng: np.random.Generator, k: int, n: int, p):
@@ -147,10 +139,6 @@ class TorchBackend:
             self._source = rng
         return self.rng
 
-    def full(self, shape, value):
-        return self.xp.full(shape if isinstance(shape, tuple) else (shape,), float(value), dtype=self.xp.float32,
-                            device=self.device)
-
     def arange(self, n: int):
         return self.xp.arange(n, device=self.device)
 
@@ -165,13 +153,8 @@ class TorchBackend:
         size = size if isinstance(size, tuple) else (int(size),)
         return self.xp.randint(int(low), int(high), size, generator=self._generator(rng), device=self.device)
 
-    def normal(self, rng: np.random.Generator, size, scale: float = 1.0):
-        size = size if isinstance(size, tuple) else (int(size),)
-        return scale * self.xp.randn(size, generator=self._generator(rng), device=self.device, dtype=self.xp.float32)
-
     def choice(self, rng: np.random.Generator, k: int, n: int, p):
-        p = self.xp.as_tensor(np.asarray(p) if not isinstance(p, self.xp.Tensor) else p,
-                              dtype=self.xp.float64, device=self.device)
+        p = self.xp.as_tensor(p, dtype=self.xp.float64, device=self.device)
         return self.xp.multinomial(p, n, replacement=True, generator=self._generator(rng))
 
 

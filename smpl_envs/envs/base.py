@@ -307,8 +307,8 @@ class HumanoidVecEnv(VectorEnv):
         unknown = sorted(set(options) - set(self.reset_options))
         if unknown:
             raise ValueError(f"unknown reset options {unknown}; known: reset_mask, {', '.join(self.reset_options)}")
-        ids = self.backend.nonzero(self.backend.asarray(
-            np.ones(self.num_envs, bool) if mask is None else self._check_mask(mask), "bool"))
+        b = self.backend
+        ids = b.arange(self.num_envs) if mask is None else b.nonzero(b.asarray(self._check_mask(mask), "bool"))
         self._reset_worlds(ids, options)
         body = self.sim.bodies
         heading = heading_rotation(body.rot[:, 0])
@@ -390,7 +390,7 @@ class HumanoidVecEnv(VectorEnv):
 
     # ------------------------------------------------------------------ internals
     def _check_mask(self, mask) -> np.ndarray:
-        mask = self.backend.to_numpy(mask) if not isinstance(mask, (np.ndarray, list, tuple)) else np.asarray(mask)
+        mask = np.asarray(self.backend.to_numpy(mask))
         if mask.dtype != bool or mask.shape != (self.num_envs,):
             raise ValueError(f"reset_mask must be a boolean mask of {self.num_envs} entries (one per world), "
                              f"got {mask.dtype} of shape {mask.shape}; for indices use np.isin(range(num_envs), ids)")

@@ -437,17 +437,21 @@ class DeviceFrames:
     Warp backend reads every step (exact-frame body states, start states, clip bounds), with the
     same `body_state` and `qpos_qvel` as the library (one implementation: they only index arrays
     and call functions written for NumPy and torch alike). Clip names, weights and everything
-    else stay on the host library, `lib`."""
+    else stay on the host library, `lib`. A subclass sets `fields` (and `dtype`) for another
+    kind of library (`three_point.DeviceStreams`)."""
 
+    fields: tuple[str, ...] = LIB_FIELDS
+    dtype = None  # None: the library's own (float32)
     body_state = MotionLib.body_state
     qpos_qvel = MotionLib.qpos_qvel
 
-    def __init__(self, lib: MotionLib, device):
+    def __init__(self, lib, device):
         import torch
 
         self.lib, self.fps, self.num_motions = lib, lib.fps, lib.num_motions
-        for name in LIB_FIELDS:
-            setattr(self, name, torch.as_tensor(getattr(lib, name), device=device))
+        dtype = getattr(torch, self.dtype) if self.dtype else None
+        for name in self.fields:
+            setattr(self, name, torch.as_tensor(getattr(lib, name), dtype=dtype, device=device))
         self.starts = torch.as_tensor(lib.starts, dtype=torch.int64, device=device)
         self.lengths = torch.as_tensor(lib.lengths, dtype=torch.int64, device=device)
 

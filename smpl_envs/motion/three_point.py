@@ -35,7 +35,7 @@ from ..features import BodyState, rotmat_from_quat
 from ..humanoid.skeleton import BODY_NAMES
 from ..rotations import quat_from_matrix, quat_slerp
 from .kinematics import Segments, angular_velocity, smooth, time_derivative
-from .library import MotionLib
+from .library import DeviceFrames, MotionLib
 from .loaders import MotionFileError, _check, _check_fps
 from .motion import FPS, VELOCITY_SMOOTHING_SIGMA, resample_frames
 
@@ -224,26 +224,15 @@ class ThreePointLib:
 STREAM_FIELDS = ("pos", "quat", "rot", "lin_vel", "ang_vel")
 
 
-class DeviceStreams:
+class DeviceStreams(DeviceFrames):
     """A ThreePointLib's per-frame arrays as float32 torch tensors on `device`: what an env on
     the MuJoCo Warp backend reads every step (three-point states, stream bounds), with the
-    library's own `body_state` (it only indexes arrays). Names, weights and everything else stay
-    on the host library, `lib` (as `motion.library.DeviceFrames` for a MotionLib)."""
+    library's own `body_state`; names and weights stay on the host library, `lib`."""
 
+    fields = STREAM_FIELDS
+    dtype = "float32"  # rot is float64 on the host
     body_state = ThreePointLib.body_state
-
-    def __init__(self, lib: ThreePointLib, device):
-        import torch
-
-        self.lib, self.fps, self.num_motions = lib, lib.fps, lib.num_motions
-        for name in STREAM_FIELDS:
-            setattr(self, name, torch.as_tensor(getattr(lib, name), dtype=torch.float32, device=device))
-        self.starts = torch.as_tensor(lib.starts, dtype=torch.int64, device=device)
-        self.lengths = torch.as_tensor(lib.lengths, dtype=torch.int64, device=device)
-
-    @property
-    def weights(self) -> np.ndarray:
-        return self.lib.weights  # the host library's
+    qpos_qvel = None  # streams have no joint angles
 
 
 def as_three_point_lib(source) -> ThreePointLib | None:

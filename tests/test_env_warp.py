@@ -293,3 +293,16 @@ def test_the_command_line_trains_evaluates_and_records_on_the_warp_backend(tmp_p
     assert load(run / "checkpoints" / "last.pt").env_kwargs["backend"] == "warp"  # evaluated and recorded so too
     assert (run / "eval.json").is_file() and (run / "videos" / "final.mp4").stat().st_size > 1000
     assert main(["eval", str(run), "--no-progress", "--out", str(tmp_path / "e.json")]) == 0
+
+
+def test_the_warp_example_runs():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "examples" / "warp_backend.py"
+    out = subprocess.run([sys.executable, str(script), "--device", "cpu", "--worlds", "2", "--steps", "3"],
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "step  3: max |obs warp - obs cpu|" in out.stdout and "PPO: 32 steps" in out.stdout
+    assert "zero residual on stand (warp)" in out.stdout

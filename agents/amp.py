@@ -31,7 +31,7 @@ from torch.nn import functional as F
 
 from .networks import mlp
 from .normalizer import RunningNorm
-from .ppo import PPO, PPOConfig
+from .ppo import PPO, PPOConfig, adam
 from .rollout import RolloutBuffer, RolloutHooks, minibatches
 from .vec import autoreset_mode, final_info_array
 
@@ -199,7 +199,7 @@ class AMP(PPO):
         self.frame_dim = layout_size(AMP_LAYOUT)
         self.disc = Discriminator(self.frame_dim, cfg.amp_num_frames, cfg.disc_hidden,
                                   cfg.disc_activation).to(self.device)
-        self.disc_optimizer = torch.optim.Adam(self.disc.net.parameters(), lr=cfg.disc_learning_rate)
+        self.disc_optimizer = adam(self.disc.net.parameters(), lr=cfg.disc_learning_rate)
         self.replay = ReplayBuffer(cfg.replay_size, self.frame_dim * cfg.amp_num_frames, self.device)
 
     def set_env(self, env, n_envs: int = 1, env_kwargs: dict | None = None) -> None:

@@ -10,8 +10,8 @@ the algorithm, and the normalisers travel inside `state_dict`. The algorithm dec
 statistics move (`update_obs_stats` on the valid steps of a rollout, `update_value_stats` on a
 rollout's returns), because only it knows which steps are real transitions.
 
-Observations in a rollout are stored normalised with the statistics of the step they were seen
-in (`normalize`), so an update scores the actions on exactly the input the actor acted on. Hence
+Observations in a rollout are stored normalised with the statistics the rollout acted under
+(`normalize`), so an update scores the actions on exactly the input the actor acted on. Hence
 the split: `act` takes raw observations; `forward`, `value` and `evaluate_actions` take
 normalised ones (`nobs`).
 """

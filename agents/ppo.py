@@ -96,6 +96,15 @@ class PPOConfig(AgentConfig):
             raise ValueError(f"lr_schedule must be 'constant' or 'linear', got {self.lr_schedule!r}")
 
 
+def adam(params, **kwargs) -> torch.optim.Adam:
+    """Adam with its fused kernel where torch has one for the device (CPU, CUDA): one pass over
+    all parameters instead of a dozen ops per tensor, a seventh of the time per step here
+    (measured: 3.7 ms to 0.5 ms for a 512-256 actor and critic on 2 cores)."""
+    params = list(params)
+    fused = bool(params) and all(p.device.type in ("cpu", "cuda") and p.is_floating_point() for p in params)
+    return torch.optim.Adam(params, fused=fused, **kwargs)
+
+
 def resolve_device(device: str | torch.device) -> torch.device:
     if str(device) == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -188,7 +197,7 @@ class PPO:
                              f"the env has {self.obs_dim} / {self.act_dim}")
         self.policy = policy.to(self.device)
         params = [p for p in self.policy.parameters() if p.requires_grad]
-        self.optimizer = torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
+        self.optimizer = adam(params, lr=cfg.learning_rate, eps=1e-5)
         self._collector = None
 
     def set_env(self, env, n_envs: int = 1, env_kwargs: dict | None = None) -> None:

@@ -3,16 +3,23 @@
     python benchmarks/bench_train.py [--worlds N] [--iterations 5] [--repeats 3] [--threads 1]
     python benchmarks/bench_train.py --ppo-recipe walk_residual_ppo --update-threads 2   # 64 worlds
 
-Three rates at the same number of worlds N (default: the PPO recipe's num_envs), each repeat
-measuring all three in turn (so load on the machine hits them alike), reported as medians of
+Rates at the same number of worlds N (default: the PPO recipe's num_envs), each repeat
+measuring all of them in turn (so load on the machine hits them alike), reported as medians of
 `--repeats`:
 
-- env: `gym.make_vec(id, num_envs=N, **recipe env kwargs)` stepped with uniformly random actions
-  (drawn up front, not timed) for as many steps per world as the agents collect, N x steps / s;
 - PPO: the `--ppo-recipe`'s agent (default `imitation_ppo`; its env id, env kwargs and
   hyperparameters) training on N worlds, samples/s over whole iterations (rollout collection +
   update + logging), after one untimed warm-up iteration (first reset, allocations);
-- AMP: the same with the `imitation_amp` recipe (discriminator update and style reward included).
+- env: a second `gym.make_vec(id, num_envs=N, **recipe env kwargs)` stepped with the very
+  actions PPO sent to its env in that repeat, replayed from a log (not timed), N x steps / s.
+  The env's cost depends on what the actions do (uniformly random residual actions throw every
+  humanoid to the floor within a few steps, which is ~25 % cheaper to simulate than standing and
+  walking), so the training rate is compared with the env's rate under the same actions;
+- env (random): the same env with uniformly random actions, for reference;
+- AMP: PPO's recipe (env, kwargs and every PPO hyperparameter) plus the AMP-only settings of
+  `--amp-recipe` (default `imitation_amp`: discriminator, style reward, windows), measured the
+  same way, so AMP/PPO is the cost of AMP's extras alone. (`imitation_amp` is `imitation_ppo`
+  plus those settings, so the default pair is the two recipes as they are.)
 
 It prints PPO/env (the share of the env's rate training keeps) and AMP/PPO (what AMP's extras
 cost), then one markdown table line. Torch runs on `--threads` CPU threads (default 1, as the
@@ -22,6 +29,8 @@ recipes recommend on small CPUs, where torch's pool fights the simulation for co
 from __future__ import annotations
 
 import argparse
+import copy
+import dataclasses
 import os
 import time
 
@@ -32,14 +41,27 @@ import torch
 
 import smpl_envs  # noqa: F401  (registers the ids)
 from agents import AGENTS
+from agents.ppo import PPOConfig
 from agents.recipes import load_recipe
+
+
+class ActionLog(gym.vector.VectorWrapper):
+    """Keeps a copy of every action batch sent to the env (`actions`, cleared by the caller)."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        self.actions: list[np.ndarray] = []
+
+    def step(self, actions):
+        self.actions.append(np.array(actions, copy=True))
+        return self.env.step(actions)
 
 
 def make_agent(recipe: dict, worlds: int, device: str, update_threads: int | None):
     env, agent = recipe["env"], recipe["agent"]
-    return AGENTS[agent["class"]](env["id"], n_envs=worlds, env_kwargs=env["kwargs"], seed=recipe["train"]["seed"],
-                                  device=device, verbose=0, log_dir=None, tensorboard=False,
-                                  update_threads=update_threads, **agent["hyperparams"])
+    vec = ActionLog(gym.make_vec(env["id"], num_envs=worlds, **env["kwargs"]))
+    return AGENTS[agent["class"]](vec, seed=recipe["train"]["seed"], device=device, verbose=0, log_dir=None,
+                                  tensorboard=False, update_threads=update_threads, **agent["hyperparams"])
 
 
 def train_rate(agent, iterations: int) -> float:
@@ -51,14 +73,33 @@ def train_rate(agent, iterations: int) -> float:
     return (agent.num_timesteps - start) / (time.perf_counter() - t)
 
 
-def env_rate(env, steps: int, rng: np.random.Generator) -> float:
-    """Steps/s (all worlds counted) of `steps` random-action steps of every world."""
-    low, high = env.single_action_space.low, env.single_action_space.high
-    actions = rng.uniform(low, high, (steps, env.num_envs, len(low))).astype(np.float32)
+def amp_on(ppo_recipe: dict, amp_recipe: dict) -> dict:
+    """PPO's recipe with AMP as the agent: PPO's settings, and AMP's own ones from `amp_recipe`."""
+    ppo_names = {f.name for f in dataclasses.fields(PPOConfig)}
+    recipe = copy.deepcopy(ppo_recipe)
+    recipe["agent"]["class"] = amp_recipe["agent"]["class"]
+    recipe["agent"]["hyperparams"].update({k: v for k, v in amp_recipe["agent"]["hyperparams"].items()
+                                           if k not in ppo_names})
+    return recipe
+
+
+def env_rate(env, actions: np.ndarray) -> float:
+    """Steps/s (all worlds counted) of stepping every world with `actions` (steps, N, act_dim)."""
     t = time.perf_counter()
     for a in actions:
         env.step(a)
-    return env.num_envs * steps / (time.perf_counter() - t)
+    return env.num_envs * len(actions) / (time.perf_counter() - t)
+
+
+def random_actions(env, steps: int, rng: np.random.Generator) -> np.ndarray:
+    low, high = env.single_action_space.low, env.single_action_space.high
+    return rng.uniform(low, high, (steps, env.num_envs, len(low))).astype(np.float32)
+
+
+def logged_actions(agent) -> np.ndarray:
+    actions = np.stack(agent.env.actions)
+    agent.env.actions.clear()
+    return actions
 
 
 def main() -> None:
@@ -83,11 +124,12 @@ def main() -> None:
     env = gym.make_vec(env_id, num_envs=args.worlds, **ppo_recipe["env"]["kwargs"])
     env.reset(seed=0)
     ppo = make_agent(ppo_recipe, args.worlds, args.device, args.update_threads)
-    amp = make_agent(amp_recipe, args.worlds, args.device, args.update_threads)
+    amp = make_agent(amp_on(ppo_recipe, amp_recipe), args.worlds, args.device, args.update_threads)
     steps = ppo.config.n_steps * args.iterations  # per world: as many as PPO collects per repeat
     for agent in (ppo, amp):  # warm-up: the first reset and the first iteration's allocations
         agent.learn(agent.config.n_steps * args.worlds, progress_bar=False)
-    env_rate(env, min(steps, 8), np.random.default_rng(1))
+        logged_actions(agent)
+    env_rate(env, random_actions(env, min(steps, 8), np.random.default_rng(1)))
 
     print(f"{os.cpu_count()} CPU cores, torch {torch.__version__} on {args.threads} thread(s) "
           f"({args.update_threads or args.threads} while updating), "
@@ -96,17 +138,24 @@ def main() -> None:
     rng = np.random.default_rng(0)
     rates = []
     for r in range(args.repeats):
-        rates.append((env_rate(env, steps, rng), train_rate(ppo, args.iterations), train_rate(amp, args.iterations)))
-        print(f"repeat {r + 1}: env {rates[-1][0]:.0f} steps/s, PPO {rates[-1][1]:.0f} samples/s, "
-              f"AMP {rates[-1][2]:.0f} samples/s", flush=True)
+        ppo_rate = train_rate(ppo, args.iterations)
+        replayed = env_rate(env, logged_actions(ppo))
+        random = env_rate(env, random_actions(env, steps, rng))
+        amp_rate = train_rate(amp, args.iterations)
+        logged_actions(amp)
+        rates.append((replayed, ppo_rate, amp_rate, random))
+        print(f"repeat {r + 1}: env {replayed:.0f} steps/s with PPO's actions ({random:.0f} with random ones), "
+              f"PPO {ppo_rate:.0f} samples/s, AMP {amp_rate:.0f} samples/s", flush=True)
     rates = np.array(rates)
-    env_s, ppo_s, amp_s = np.median(rates, 0)
+    env_s, ppo_s, amp_s, random_s = np.median(rates, 0)
     ppo_env, amp_ppo = np.median(rates[:, 1] / rates[:, 0]), np.median(rates[:, 2] / rates[:, 1])
-    print(f"PPO/env {ppo_env:.2f}, AMP/PPO {amp_ppo:.2f}")
-    print("| id | worlds | torch threads (update) | env steps/s | PPO samples/s | AMP samples/s | PPO/env | AMP/PPO |")
-    print("|---|---|---|---|---|---|---|---|")
-    print(f"| `{env_id}` | {args.worlds} | {args.threads} ({args.update_threads or args.threads}) | {env_s:.0f} | {ppo_s:.0f} | {amp_s:.0f} "
-          f"| {ppo_env:.2f} | {amp_ppo:.2f} |")
+    print(f"PPO/env {ppo_env:.2f}, AMP/PPO {amp_ppo:.2f} (PPO/env with random actions "
+          f"{np.median(rates[:, 1] / rates[:, 3]):.2f})")
+    print("| id | worlds | torch threads (update) | env steps/s (PPO's actions) | env steps/s (random) "
+          "| PPO samples/s | AMP samples/s | PPO/env | AMP/PPO |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    print(f"| `{env_id}` | {args.worlds} | {args.threads} ({args.update_threads or args.threads}) | {env_s:.0f} "
+          f"| {random_s:.0f} | {ppo_s:.0f} | {amp_s:.0f} | {ppo_env:.2f} | {amp_ppo:.2f} |")
     for closeable in (env, ppo, amp):
         closeable.close()
 

@@ -67,11 +67,22 @@ class AMPConfig(PPOConfig):
     """weight of all squared discriminator weights"""
     disc_epochs: int | None = None
     """passes over each rollout's windows per update (None: n_epochs)"""
+    disc_batch_size: int | None = None
+    """policy windows per discriminator step, with as many demo windows (None: batch_size). D
+    takes one step per policy minibatch, on this many of its windows: the anchors train D on
+    4,096 windows of each 16,384-transition minibatch (PHC's amp_minibatch_size), a quarter"""
     replay_size: int = 50_000
     """policy windows kept for D to revisit (the anchors use 200k; CPU memory is smaller: 50k
     windows of 10 frames are ~460 MB)"""
     replay_keep_prob: float = 0.01
     """chance that a rollout's window enters the replay buffer once it is full"""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("disc_epochs", "disc_batch_size"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"{name} must be >= 1 (or None), got {value}")
 
 
 class Discriminator(nn.Module):
@@ -270,7 +281,8 @@ class AMP(PPO):
         stats: dict[str, list[float]] = {k: [] for k in ("loss", "bce", "grad_penalty", "agent_acc", "demo_acc")}
         for _ in range(cfg.disc_epochs or cfg.n_epochs):
             for mb in minibatches({"fake": agent}, cfg.batch_size):
-                fake, size = mb["fake"], len(mb["fake"])
+                fake = mb["fake"][: cfg.disc_batch_size or cfg.batch_size]  # a shuffled minibatch's head
+                size = len(fake)
                 if self.replay.n > 0:  # half the negatives from older policies
                     fake = torch.cat([fake[: size - size // 2], self.replay.sample(size // 2)])
                 real = self._sample_demo(size)

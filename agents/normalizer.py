@@ -22,10 +22,13 @@ class RunningNorm(nn.Module):
 
     @torch.no_grad()
     def update(self, x: torch.Tensor) -> None:
-        x = x.reshape(-1, *self.mean.shape).to(torch.float64)
+        x = x.reshape(-1, *self.mean.shape)
         if x.shape[0] == 0:
             return
-        (batch_var, batch_mean), n = torch.var_mean(x, 0, correction=0), x.shape[0]
+        # One batch's moments are exact enough in its own precision (a float32 batch: half the
+        # memory traffic of converting it first); the running combination is float64.
+        batch_var, batch_mean = (m.to(torch.float64) for m in torch.var_mean(x, 0, correction=0))
+        n = x.shape[0]
         delta, total = batch_mean - self.mean, self.count + n
         # Chan et al.'s parallel combination of two (mean, M2) summaries.
         m2 = self.var * self.count + batch_var * n + delta.square() * self.count * n / total

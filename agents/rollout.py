@@ -160,7 +160,8 @@ class RolloutCollector:
     value_threads: torch CPU threads for the value pass after the last step (None: as set).
 
     Only the actor runs between env steps. The critic does not change during a rollout, so the
-    values of all its observations come from one batched pass after the last step: one large
+    values of all its observations (and of the final observations of time-limited episodes, for
+    their bootstrap) come from one batched pass after the last step: one large
     matrix product instead of `n_steps` small ones, run while the simulator idles (on every core
     with `value_threads`). That pass is a third of the policy's time in a rollout.
 
@@ -220,6 +221,7 @@ class RolloutCollector:
         buf.reset()
         self.hooks.on_rollout_start(buf)
         terms_sum: dict[str, float] = {}
+        cut_obs, cut_at = [], []  # final observations of time-limited episodes, and (step, world)
         for t in range(buf.n_steps):
             # NextStep autoreset: the step after an episode's end only resets; it is no transition.
             valid = ~self.prev_done
@@ -236,9 +238,10 @@ class RolloutCollector:
             done_env, valid_env = self._env_array(done), self._env_array(valid)
             # A time limit is not a failure: keep the value of where the episode stopped.
             cut = truncated & ~terminated & valid
-            if cut.any():
-                final = self._tensor(final_observations(next_obs, info, done_env, self.autoreset))[cut]
-                buf.bootstrap[t, cut] = pol.value(pol.normalize(final))
+            if cut.any():  # their values come with the batched pass at the end
+                cut_obs.append(self._tensor(final_observations(next_obs, info, done_env, self.autoreset))[cut])
+                worlds = torch.nonzero(cut).squeeze(1)
+                cut_at.append(torch.stack([torch.full_like(worlds, t), worlds]))
             buf.rewards[t] = reward
             buf.dones[t] = done
             buf.valid[t] = valid
@@ -255,7 +258,9 @@ class RolloutCollector:
             self.ep_length[done] = 0
             self.prev_done = done if self.autoreset == AutoresetMode.NEXT_STEP else torch.zeros_like(done)
             self.last_obs = next_obs
-            if not bool(torch.isfinite(torch.as_tensor(next_obs)).all()):
+            # The sum is non-finite iff an element is (or the sum overflows, itself divergence);
+            # 20x cheaper than an elementwise isfinite at these sizes.
+            if not bool(torch.as_tensor(next_obs).sum().isfinite()):
                 raise FloatingPointError("the env returned a non-finite observation; the simulation diverged "
                                          "without ending its episode")
 
@@ -266,11 +271,15 @@ class RolloutCollector:
             self._first_step_folded = False
             raw = buf.obs[first:][buf.valid[first:].bool()]
             buf.obs.copy_(pol.normalize(buf.obs))
-            last = pol.normalize(self._tensor(self.last_obs))
+            tail = pol.normalize(torch.cat([self._tensor(self.last_obs), *cut_obs]))
             pol.update_obs_stats(raw)
-            values = pol.value(torch.cat([buf.obs.reshape(-1, buf.obs.shape[-1]), last]))
-        buf.values.copy_(values[:-N].reshape(buf.n_steps, N))
-        return values[-N:], {k: float(s) / buf.n_steps for k, s in terms_sum.items()}
+            values = pol.value(torch.cat([buf.obs.reshape(-1, buf.obs.shape[-1]), tail]))
+        T = buf.n_steps
+        buf.values.copy_(values[:T * N].reshape(T, N))
+        if cut_at:
+            steps, worlds = torch.cat(cut_at, 1)
+            buf.bootstrap[steps, worlds] = values[(T + 1) * N:]
+        return values[T * N:(T + 1) * N], {k: float(s) / T for k, s in terms_sum.items()}
 
 
 @contextlib.contextmanager

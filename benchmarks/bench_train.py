@@ -2,6 +2,7 @@
 
     python benchmarks/bench_train.py [--worlds N] [--iterations 5] [--repeats 3] [--threads 1]
     python benchmarks/bench_train.py --ppo-recipe walk_residual_ppo --update-threads 2   # 64 worlds
+    python benchmarks/bench_train.py ... --set agent.hyperparams.n_epochs=2              # any recipe value
 
 Rates at the same number of worlds N (default: the PPO recipe's num_envs), each repeat
 measuring all of them in turn (so load on the machine hits them alike), reported as medians of
@@ -113,9 +114,12 @@ def main() -> None:
     p.add_argument("--update-threads", type=int, default=None,
                    help="torch CPU threads during the update only (default: as --threads)")
     p.add_argument("--device", default="cpu")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a value of the PPO recipe (and so of AMP's), as `smpl-envs train --set`, "
+                        "e.g. --set agent.hyperparams.n_epochs=2")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    ppo_recipe, amp_recipe = load_recipe(args.ppo_recipe), load_recipe(args.amp_recipe)
+    ppo_recipe, amp_recipe = load_recipe(args.ppo_recipe, overrides=args.set), load_recipe(args.amp_recipe)
     env_id = ppo_recipe["env"]["id"]
     args.worlds = args.worlds or ppo_recipe["env"]["num_envs"]
     if amp_recipe["env"]["id"] != env_id:

@@ -337,6 +337,29 @@ def test_collector_fills_the_buffer_and_calls_its_hooks():
     env.close()
 
 
+def test_collector_bootstraps_time_limits_and_counts_each_observation_once():
+    import gymnasium as gym
+    from collections import deque
+    from agents.rollout import RolloutCollector
+
+    # NextStep autoreset with a 3-step limit: steps 2 and 6 end episodes by truncation, steps 3
+    # and 7 only reset, and their observation is the truncated episode's final one.
+    env = gym.make_vec("Pendulum-v1", num_envs=2, vectorization_mode="sync", max_episode_steps=3)
+    policy = ActorCritic(3, 1, actor_hidden=(8,), critic_hidden=(8,))
+    collector = RolloutCollector(env, policy, lambda a: a.clamp(-1, 1).numpy() * 2, deque())
+    collector.reset(seed=0)
+    assert policy.obs_norm.count.item() == pytest.approx(2, abs=1e-3)  # the reset observations
+    buf = RolloutBuffer(8, 2, 3, 1)
+    collector.collect(buf)
+    assert buf.valid[:, 0].tolist() == [1, 1, 1, 0, 1, 1, 1, 0]
+    # Bootstraps come from the batched value pass: V of the final observation, where cut.
+    torch.testing.assert_close(buf.bootstrap[[2, 6]], policy.value(buf.obs[[3, 7]]))
+    assert float(buf.bootstrap[[0, 1, 3, 4, 5, 7]].abs().sum()) == 0.0
+    # 6 valid steps per world; the first step's observations were the reset's, counted then.
+    assert policy.obs_norm.count.item() == pytest.approx(2 * 6, abs=1e-3)
+    env.close()
+
+
 def test_amp_reaches_the_clips_only_through_the_documented_motion_lib():
     import gymnasium as gym
 

@@ -71,6 +71,9 @@ def save_checkpoint(payload: dict[str, Any], path: str | os.PathLike) -> Path:
                  "payload": torch.frombuffer(bytearray(data), dtype=torch.uint8)}
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        # mkstemp makes the file private (0600); give it the mode a plain open() would, so
+        # checkpoints stay readable where the user's umask shares files (a cluster's group).
+        os.chmod(tmp, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as f:
             torch.save(container, f)
             f.flush()
@@ -81,6 +84,12 @@ def save_checkpoint(payload: dict[str, Any], path: str | os.PathLike) -> Path:
         raise
     _fsync_dir(path.parent)
     return path
+
+
+def _umask() -> int:
+    mask = os.umask(0)  # reading the umask means setting it; put it straight back
+    os.umask(mask)
+    return mask
 
 
 def _fsync_dir(directory: Path) -> None:

@@ -13,9 +13,10 @@ measuring all of them in turn (so load on the machine hits them alike), reported
   update + logging), after one untimed warm-up iteration (first reset, allocations);
 - env: a second `gym.make_vec(id, num_envs=N, **recipe env kwargs)` stepped with the very
   actions PPO sent to its env in that repeat, replayed from a log (not timed), N x steps / s.
-  The env's cost depends on what the actions do (uniformly random residual actions throw every
-  humanoid to the floor within a few steps, which is ~25 % cheaper to simulate than standing and
-  walking), so the training rate is compared with the env's rate under the same actions;
+  The env's cost depends on what the actions do (uniformly random residual actions end episodes
+  every few steps, and each end brings a reset-only step without physics: ~25 % more steps/s
+  than under a policy's actions), so the training rate is compared with the env's rate under the
+  same actions;
 - env (random): the same env with uniformly random actions, for reference;
 - AMP: PPO's recipe (env, kwargs and every PPO hyperparameter) plus the AMP-only settings of
   `--amp-recipe` (default `imitation_amp`: discriminator, style reward, windows), measured the

@@ -37,6 +37,16 @@ def test_roundtrip_and_weights_only_container(tmp_path):
     assert set(raw) == {"format", "sha256", "payload"} and len(raw["sha256"]) == 64
 
 
+@pytest.mark.skipif(os.name != "posix", reason="file modes are POSIX")
+def test_saved_file_has_the_umask_mode_not_mkstemp_private(tmp_path):
+    before = os.umask(0o022)
+    try:
+        path = save_checkpoint(_state(), tmp_path / "shared")
+    finally:
+        os.umask(before)
+    assert path.stat().st_mode & 0o777 == 0o644
+
+
 def test_flipped_bytes_are_detected(tmp_path):
     path = save_checkpoint(_state(), tmp_path / "ckpt.pt")
     size = path.stat().st_size

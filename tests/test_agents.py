@@ -221,6 +221,40 @@ def test_amp_discriminator_separates_reference_from_random_policy():
     assert model.style_reward(real).mean() > 2 * model.style_reward(fake).mean()
 
 
+def test_subnormals_are_flushed_from_parameters_and_moments():
+    from agents.ppo import adam, flush_subnormals_
+
+    tiny = torch.finfo(torch.float32).tiny
+    layer = torch.nn.Linear(4, 3)
+    opt = adam(layer.parameters(), lr=1e-3)
+    layer(torch.ones(2, 4)).sum().backward()
+    opt.step()
+    with torch.no_grad():
+        layer.weight[0, :2] = torch.tensor([tiny / 4, -tiny / 8])  # subnormal
+        layer.weight[1, 0] = tiny  # the smallest normal float stays
+    opt.state[layer.weight]["exp_avg"][2, 3] = tiny / 2
+    kept = layer.weight.detach().clone()
+    flush_subnormals_(opt)
+    assert layer.weight[0, :2].tolist() == [0.0, 0.0] and layer.weight[1, 0].item() == tiny
+    assert opt.state[layer.weight]["exp_avg"][2, 3].item() == 0.0
+    torch.testing.assert_close(layer.weight[1:], kept[1:], rtol=0, atol=0)
+    assert int(opt.state[layer.weight]["step"]) == 1  # the step count is no moment
+
+
+def test_every_update_flushes_both_optimizers(monkeypatch):
+    import agents.amp as amp_module
+    import agents.ppo as ppo_module
+
+    flushed = []
+    for module in (ppo_module, amp_module):
+        real = module.flush_subnormals_
+        monkeypatch.setattr(module, "flush_subnormals_", lambda opt, real=real: (flushed.append(opt), real(opt)))
+    model = AMP("SMPL/Imitation-v0", n_envs=2, env_kwargs=dict(motions="walk"), n_steps=16, batch_size=32,
+                n_epochs=1, disc_hidden=(16,), replay_size=100, seed=0, **TINY)
+    model.learn(64, progress_bar=False)  # two iterations
+    assert flushed == [model.optimizer, model.disc_optimizer] * 2
+
+
 def test_amp_save_load_roundtrip(tmp_path):
     model = AMP("SMPL/KeypointImitation-v0", n_envs=2, env_kwargs=dict(motions="walk"), n_steps=16,
                 batch_size=32, n_epochs=1, disc_hidden=(32, 32), replay_size=100, seed=0, **TINY)

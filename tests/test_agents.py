@@ -230,12 +230,12 @@ def test_subnormals_are_flushed_from_parameters_and_moments():
     layer(torch.ones(2, 4)).sum().backward()
     opt.step()
     with torch.no_grad():
-        layer.weight[0, :2] = torch.tensor([tiny / 4, -tiny / 8])  # subnormal
-        layer.weight[1, 0] = tiny  # the smallest normal float stays
+        layer.weight[0, :3] = torch.tensor([tiny / 4, -tiny / 8, 1e3 * tiny])  # subnormal, and near it
+        layer.weight[1, 0] = 1e-20  # small, but far from the subnormal range: kept
     opt.state[layer.weight]["exp_avg"][2, 3] = tiny / 2
     kept = layer.weight.detach().clone()
     flush_subnormals_(opt)
-    assert layer.weight[0, :2].tolist() == [0.0, 0.0] and layer.weight[1, 0].item() == tiny
+    assert layer.weight[0, :3].tolist() == [0.0, 0.0, 0.0] and layer.weight[1, 0].item() == pytest.approx(1e-20)
     assert opt.state[layer.weight]["exp_avg"][2, 3].item() == 0.0
     torch.testing.assert_close(layer.weight[1:], kept[1:], rtol=0, atol=0)
     assert int(opt.state[layer.weight]["step"]) == 1  # the step count is no moment

@@ -221,7 +221,8 @@ class RolloutCollector:
         buf.reset()
         self.hooks.on_rollout_start(buf)
         terms_sum: dict[str, float] = {}
-        cut_obs, cut_at = [], []  # final observations of time-limited episodes, and (step, world)
+        cut_obs = []  # final observations of time-limited episodes, in (step, world) order
+        cut_at = torch.zeros(buf.n_steps, N, dtype=torch.bool, device=self.device)
         for t in range(buf.n_steps):
             # NextStep autoreset: the step after an episode's end only resets; it is no transition.
             valid = ~self.prev_done
@@ -240,8 +241,7 @@ class RolloutCollector:
             cut = truncated & ~terminated & valid
             if cut.any():  # their values come with the batched pass at the end
                 cut_obs.append(self._tensor(final_observations(next_obs, info, done_env, self.autoreset))[cut])
-                worlds = torch.nonzero(cut).squeeze(1)
-                cut_at.append(torch.stack([torch.full_like(worlds, t), worlds]))
+                cut_at[t] = cut
             buf.rewards[t] = reward
             buf.dones[t] = done
             buf.valid[t] = valid
@@ -276,9 +276,7 @@ class RolloutCollector:
             values = pol.value(torch.cat([buf.obs.reshape(-1, buf.obs.shape[-1]), tail]))
         T = buf.n_steps
         buf.values.copy_(values[:T * N].reshape(T, N))
-        if cut_at:
-            steps, worlds = torch.cat(cut_at, 1)
-            buf.bootstrap[steps, worlds] = values[(T + 1) * N:]
+        buf.bootstrap[cut_at] = values[(T + 1) * N:]  # a mask selects in (step, world) order
         return values[T * N:(T + 1) * N], {k: float(s) / T for k, s in terms_sum.items()}
 
 

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import dataclasses
 import os
 import time
 
@@ -77,7 +76,7 @@ def train_rate(agent, iterations: int) -> float:
 
 def amp_on(ppo_recipe: dict, amp_recipe: dict) -> dict:
     """PPO's recipe with AMP as the agent: PPO's settings, and AMP's own ones from `amp_recipe`."""
-    ppo_names = {f.name for f in dataclasses.fields(PPOConfig)}
+    ppo_names = set(PPOConfig.names())
     recipe = copy.deepcopy(ppo_recipe)
     recipe["agent"]["class"] = amp_recipe["agent"]["class"]
     recipe["agent"]["hyperparams"].update({k: v for k, v in amp_recipe["agent"]["hyperparams"].items()

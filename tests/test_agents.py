@@ -255,6 +255,18 @@ def test_every_update_flushes_both_optimizers(monkeypatch):
     assert flushed == [model.optimizer, model.disc_optimizer] * 2
 
 
+def test_amp_disc_batch_size_sets_the_windows_per_discriminator_step(monkeypatch):
+    model = AMP("SMPL/Imitation-v0", n_envs=2, env_kwargs=dict(motions="walk"), n_steps=32, batch_size=32,
+                n_epochs=1, disc_hidden=(16,), disc_batch_size=8, replay_size=0, seed=0, **TINY)
+    sizes, step = [], model._disc_step
+    monkeypatch.setattr(model, "_disc_step", lambda real, fake: (sizes.append((len(real), len(fake))), step(real, fake))[1])
+    model.learn(64, progress_bar=False)
+    # One D step per policy minibatch (~2 of 32 per 64-sample rollout), each on 8 + 8 windows.
+    assert len(sizes) >= 2 and set(sizes) == {(8, 8)}, sizes
+    with pytest.raises(ValueError, match="disc_batch_size"):
+        AMPConfig(disc_batch_size=0)
+
+
 def test_amp_save_load_roundtrip(tmp_path):
     model = AMP("SMPL/KeypointImitation-v0", n_envs=2, env_kwargs=dict(motions="walk"), n_steps=16,
                 batch_size=32, n_epochs=1, disc_hidden=(32, 32), replay_size=100, seed=0, **TINY)

@@ -35,6 +35,7 @@ class Panel:
     right: list[tuple[str, str]] = field(default_factory=list)
     right_label: str = ""
     log: bool = False  # log y axis, for quantities whose rare spikes would flatten the rest
+    fraction: bool = False  # left axis holds fractions: fix it to [0, 1] (a flat 1.0 stays readable)
 
 
 def find_progress_csv(run_dir_or_csv: str | os.PathLike) -> Path:
@@ -73,6 +74,9 @@ def panels_for(columns: dict[str, np.ndarray]) -> list[Panel]:
     """The panels worth drawing for these columns, in reading order."""
     has = lambda k: k in columns and np.isfinite(columns[k]).any()  # noqa: E731
     reward_terms = sorted(k for k in columns if k.startswith("rollout/reward_") and has(k))
+    # An imitation evaluation logs `score` only to rank checkpoints (success rate less 1e-6 x
+    # error): its errors are the curve to read, so the goal tasks' panel leaves the score out.
+    imitation = has("eval/mpjpe_g") or has("eval/all_mpjpe_g")
     candidates = [
         Panel("Episode length", "steps", [("rollout/ep_len_mean", "mean episode length")]),
         Panel("Episode return", "return", [("rollout/ep_rew_mean", "mean episode return")]),
@@ -81,11 +85,12 @@ def panels_for(columns: dict[str, np.ndarray]) -> list[Panel]:
               + [("rollout/step_reward_mean", "total (as trained on)")]),
         Panel("Evaluation", "success rate", [("eval/success_rate", "success rate")],
               [("eval/mpjpe_g", "MPJPE-g (successful clips)"), ("eval/all_mpjpe_g", "MPJPE-g (all clips)")],
-              "mm"),
+              "mm", fraction=True),
         # Goal tasks' episode evaluations: fractions on the left, distances and errors on the right.
-        Panel("Evaluation", "fraction / score",
-              [("eval/score", "score (reward per step over 10 s)"), ("eval/no_fall", "episodes without a fall"),
-               ("eval/toppled", "boxes toppled"), ("eval/targets_reached", "targets reached")],
+        Panel("Task evaluation", "fraction / score",
+              ([] if imitation else [("eval/score", "score (reward per step over 10 s)")])
+              + [("eval/no_fall", "episodes without a fall"),
+                 ("eval/toppled", "boxes toppled"), ("eval/targets_reached", "targets reached")],
               [("eval/speed_error", "speed error (m/s)"), ("eval/hand_distance", "hand distance (m)")], "m/s, m"),
         Panel("Adversarial motion prior", "reward / accuracy",
               [("amp/style_reward_mean", "style reward"), ("amp/task_reward_mean", "task reward"),
@@ -155,6 +160,8 @@ def _draw(ax, panel: Panel, columns: dict[str, np.ndarray]) -> None:
     ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))
     if panel.log:
         ax.set_yscale("log")
+    if panel.fraction:
+        ax.set_ylim(-0.03, 1.03)
     if panel.right:
         twin = ax.twinx()
         lines += _plot_series(twin, x, columns, panel.right, style="--", colors=len(panel.left))

@@ -177,6 +177,7 @@ def _prepare_resume(args) -> tuple[dict, Path, Any, "Evaluator"]:
 
 def _train(args, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
     print(f"run directory: {run}", flush=True)
+    evaluator.history_dir = run / "evals"
     callbacks, eval_cb = _callbacks(recipe, run, evaluator, resuming=args.resume is not None)
     remaining = recipe["train"]["total_timesteps"] - agent.num_timesteps
     with _SigtermAsInterrupt() as sigterm:
@@ -428,18 +429,27 @@ def _finish_run(agent, recipe: dict, run: Path, evaluator: "Evaluator", eval_cb,
 # ---------------------------------------------------------------------------------------- evaluation
 class Evaluator:
     """`evaluate_fn` for EvalCallback: the task's own evaluation protocol on the agent's env,
-    returning the summary's numbers; keeps the full result of the latest call for eval.json."""
+    returning the summary's numbers; keeps the full result of the latest call for eval.json.
 
-    def __init__(self, recipe: dict, progress: bool = True):
+    With `history_dir`, every evaluation's full result (per clip or per episode, which the
+    progress CSV's summary columns leave out) is also kept as `<timesteps>.json` / `.txt` there:
+    how each clip of a multi-clip run came along, after the run's checkpoints have rotated out."""
+
+    def __init__(self, recipe: dict, progress: bool = True, history_dir: Path | None = None):
         from smpl_envs.evaluation import protocol_for
 
         self.protocol = protocol_for(recipe["env"]["id"])
         self.motions, self.num_envs = recipe["eval"]["motions"], recipe["eval"]["num_envs"]
         self.options, self.progress = recipe["eval"]["options"], progress
+        self.history_dir = history_dir
         self.last = None
 
     def __call__(self, agent) -> dict[str, float]:
         self.last = evaluate_agent(agent, self.motions, self.num_envs, self.progress, **self.options)
+        if self.history_dir is not None:
+            path = self.history_dir / f"{agent.num_timesteps:012d}.json"
+            self.last.save(path)  # creates the directory
+            path.with_suffix(".txt").write_text(self.last.table() + "\n")
         return summary_metrics(self.last.summary)
 
 

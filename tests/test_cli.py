@@ -188,6 +188,10 @@ def test_train_writes_a_complete_run(trained):
     summary = yaml.safe_load((trained / "eval.json").read_text())["summary"]  # JSON is YAML
     assert summary["clips"] == 1 and 0.0 <= summary["success_rate"] <= 1.0
     assert "walk" in (trained / "eval.txt").read_text()
+    # Every evaluation's per-clip result is kept by timesteps (here the final one only).
+    history = yaml.safe_load((trained / "evals" / "000000001024.json").read_text())
+    assert [row["name"] for row in history["clips"]] == ["walk"] and history["summary"] == summary
+    assert "walk" in (trained / "evals" / "000000001024.txt").read_text()
 
 
 def test_eval_record_plot_commands(trained, tmp_path, capsys):

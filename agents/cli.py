@@ -431,25 +431,24 @@ class Evaluator:
     """`evaluate_fn` for EvalCallback: the task's own evaluation protocol on the agent's env,
     returning the summary's numbers; keeps the full result of the latest call for eval.json.
 
-    With `history_dir`, every evaluation's full result (per clip or per episode, which the
-    progress CSV's summary columns leave out) is also kept as `<timesteps>.json` / `.txt` there:
-    how each clip of a multi-clip run came along, after the run's checkpoints have rotated out."""
+    Once `history_dir` is set (by `_train`, when the run directory exists), every evaluation's
+    full result (per clip or per episode, which the progress CSV's summary columns leave out) is
+    also kept as `<timesteps>.json` / `.txt` there: how each clip of a multi-clip run came along,
+    after the run's checkpoints have rotated out."""
 
-    def __init__(self, recipe: dict, progress: bool = True, history_dir: Path | None = None):
+    def __init__(self, recipe: dict, progress: bool = True):
         from smpl_envs.evaluation import protocol_for
 
         self.protocol = protocol_for(recipe["env"]["id"])
         self.motions, self.num_envs = recipe["eval"]["motions"], recipe["eval"]["num_envs"]
         self.options, self.progress = recipe["eval"]["options"], progress
-        self.history_dir = history_dir
+        self.history_dir: Path | None = None
         self.last = None
 
     def __call__(self, agent) -> dict[str, float]:
         self.last = evaluate_agent(agent, self.motions, self.num_envs, self.progress, **self.options)
         if self.history_dir is not None:
-            path = self.history_dir / f"{agent.num_timesteps:012d}.json"
-            self.last.save(path)  # creates the directory
-            path.with_suffix(".txt").write_text(self.last.table() + "\n")
+            _save_result(self.last, self.history_dir / f"{agent.num_timesteps:012d}.json")
         return summary_metrics(self.last.summary)
 
 
@@ -476,11 +475,17 @@ def summary_metrics(summary: dict) -> dict[str, float]:
             if k != "clips" and isinstance(v, (int, float)) and not isinstance(v, bool)}
 
 
-def _write_eval(result, json_path: Path) -> None:
-    result.save(json_path)
+def _save_result(result, json_path: Path) -> str:
+    """An evaluation's result as JSON at `json_path` and its table next to it (.txt); returns
+    the table."""
+    result.save(json_path)  # creates the directory
     table = result.table()
     json_path.with_suffix(".txt").write_text(table + "\n")
-    print(table)
+    return table
+
+
+def _write_eval(result, json_path: Path) -> None:
+    print(_save_result(result, json_path))
     print(json_path)
 
 

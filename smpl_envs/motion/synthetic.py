@@ -393,44 +393,83 @@ class _Gait:
     stance_knee: float = MIN_KNEE  # run: the straightest knee on the ground (at touchdown)
 
 
-def _path(t_fine, speed, yaw_rate):
-    """Integrate heading and position on a fine grid (xy (N, 2), heading (N,))."""
+def _path(t_fine, speed, yaw_rate, travel=0.0):
+    """Integrate heading and position on a fine grid (xy (N, 2), heading (N,)); the body moves at
+    `travel` radians from its heading (0 forwards, pi/2 a side step to the left, pi backwards)."""
     dt = t_fine[1] - t_fine[0]
     yaw = np.concatenate([[0.0], np.cumsum(0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * dt)])
-    vel = speed[:, None] * np.stack([np.cos(yaw), np.sin(yaw)], -1)
+    vel = speed[:, None] * np.stack([np.cos(yaw + travel), np.sin(yaw + travel)], -1)
     xy = np.concatenate([[[0.0, 0.0]], np.cumsum(0.5 * (vel[1:] + vel[:-1]) * dt, 0)])
     return xy, yaw
 
 
-def _locomotion(name, duration, gait: _Gait, speed: float, yaw_rate=lambda t: 0 * t) -> RawMotion:
+def _as_profile(value):
+    """A profile over time: a callable t -> array, or a constant."""
+    return value if callable(value) else (lambda t, v=float(value): np.full(np.shape(t), v))
+
+
+def _running_min_smooth(z: np.ndarray, radius: int) -> np.ndarray:
+    """A smooth curve never above z: the minimum over +-radius frames, then averaged over the same
+    window (each average mixes values that are below z there). With a radius as long as the
+    clip it is z's global minimum."""
+    if radius >= len(z):
+        return np.full_like(z, z.min())
+    pad = np.pad(z, radius, mode="edge")
+    eroded = np.pad(np.lib.stride_tricks.sliding_window_view(pad, 2 * radius + 1).min(-1), radius, mode="edge")
+    return np.lib.stride_tricks.sliding_window_view(eroded, 2 * radius + 1).mean(-1)
+
+
+def _locomotion(name, duration, gait: _Gait, speed, yaw_rate=lambda t: 0 * t, travel=0.0,
+                activity=1.0, arm_pose=None, stride=None) -> RawMotion:
+    """Walking or running (`gait.flight`) along a path. `speed` (m/s), `yaw_rate` (rad/s),
+    `travel` (direction of motion relative to the heading, rad) and `activity` (1 stepping,
+    0 standing with both feet planted: gait amplitudes scale with it, so a clip can start from
+    standing and stop) are constants or callables of time. `arm_pose(t, side, flex, abduct,
+    elbow)` may replace the swinging arms' (flex, abduct, elbow, twist), for a gesture while
+    walking. `stride` (s per gait cycle, a callable of time; walking only) lets the cadence
+    change with the speed, as people's does; by default it is `gait.stride` throughout."""
+    if stride is not None and gait.flight:
+        raise ValueError("a varying stride is for walking: a run's flights assume a steady cadence")
+    speed, travel, activity = _as_profile(speed), _as_profile(travel), _as_profile(activity)
     t = _time(duration)
     n = len(t)
     # Path on a fine grid reaching a stride beyond both ends so every footstep is defined.
     t_fine = np.arange(-2 * gait.stride, duration + 2 * gait.stride, 1e-3)
-    xy_fine, yaw_fine = _path(t_fine, np.full(len(t_fine), speed), yaw_rate(t_fine))
+    xy_fine, yaw_fine = _path(t_fine, speed(t_fine), yaw_rate(t_fine), travel(t_fine))
     i0 = np.searchsorted(t_fine, 0.0)
     xy_fine, yaw_fine = xy_fine - xy_fine[i0], yaw_fine - yaw_fine[i0]  # start at the origin
     at = lambda tq: (np.stack([np.interp(tq, t_fine, xy_fine[:, 0]), np.interp(tq, t_fine, xy_fine[:, 1])], -1),
                      np.interp(tq, t_fine, yaw_fine))
     path_xy, heading = at(t)
+    # Gait phase (cycles since t = 0) and its inverse; exact when the cadence is constant.
+    if stride is None:
+        cycles, time_at = (lambda tq: tq / gait.stride), (lambda p: p * gait.stride)
+        stride_t = np.full(n, gait.stride)
+    else:
+        phi = np.concatenate([[0.0], np.cumsum(0.5 * (1 / stride(t_fine[1:]) + 1 / stride(t_fine[:-1])) * 1e-3)])
+        phi -= np.interp(0.0, t_fine, phi)
+        cycles, time_at = (lambda tq: np.interp(tq, t_fine, phi)), (lambda p: np.interp(p, phi, t_fine))
+        stride_t = stride(t)
+    act = np.clip(activity(t), 0.0, 1.0)
+    # Heel-and-toe roll belongs to forward walking; stepping sideways or backwards rolls less.
+    roll_over = act * (0.3 + 0.7 * np.maximum(np.cos(travel(t)), 0.0))
     stance = gait.duty * gait.stride
-    first_td = {"L": 0.1 * gait.stride, "R": 0.6 * gait.stride}  # begin mid-gait
+    first_td = {"L": 0.1, "R": 0.6}  # cycles at the first touchdowns: begin mid-gait
     legs, phase_of = {}, {}
     for side, s in SIDES.items():
-        k = np.floor((t - first_td[side]) / gait.stride)  # index of the last touchdown
-        td = first_td[side] + k * gait.stride
-        phase = (t - td) / gait.stride
+        k = np.floor(cycles(t) - first_td[side])  # index of the last touchdown
+        phase = cycles(t) - first_td[side] - k
         phase_of[side] = phase
         # Footsteps: the toe joint `ball_ahead` in front of the pelvis and `width` to the side at
         # the middle of the stance, turned with the heading of that moment.
         def step(kk):
-            mid = first_td[side] + kk * gait.stride + 0.5 * stance
+            mid = time_at(first_td[side] + kk + 0.5 * gait.duty)
             p_xy, yaw = at(mid)
             off = np.stack([gait.ball_ahead * np.cos(yaw) - s * gait.width * np.sin(yaw),
                             gait.ball_ahead * np.sin(yaw) + s * gait.width * np.cos(yaw)], -1)
             return p_xy + off, yaw + s * 5 * DEG
         (xy0, yaw0), (xy1, yaw1) = step(k), step(k + 1)
-        swing = np.clip((phase * gait.stride - stance) / (gait.stride - stance), 0.0, 1.0)
+        swing = np.clip((phase - gait.duty) / (1 - gait.duty), 0.0, 1.0)
         # Horizontal travel is over by `swing_land` of the swing: the foot then comes straight
         # down, so it never brushes the floor while moving.
         arrive = np.clip(swing / gait.swing_land, 0.0, 1.0)
@@ -440,25 +479,28 @@ def _locomotion(name, duration, gait: _Gait, speed: float, yaw_rate=lambda t: 0 
         # The foot is still a few cm up when it is over its footstep and comes down with some
         # speed (as feet do): a foot that arrived at rest would hover just above the floor, far
         # in front of the hips, for the whole approach, and the legs could not reach it.
-        t_sw = gait.stride - stance
-        ball[:, 2] = BALL_HEIGHT[side] + _hermite(
-            swing, [0, gait.swing_peak, gait.swing_land, 1],
-            [0, gait.swing_height, gait.landing_height, 0],
-            [gait.liftoff_speed * t_sw, 0, -gait.landing_speed * t_sw, -gait.landing_speed * t_sw])
+        t_sw = (1 - gait.duty) * stride_t
+        # (Hermite interpolation is linear in its values and slopes: the slopes, speeds times the
+        # swing's duration, enter per frame.)
+        keys = [0, gait.swing_peak, gait.swing_land, 1]
+        lift = (_hermite(swing, keys, [0, gait.swing_height, gait.landing_height, 0], [0, 0, 0, 0])
+                + t_sw * _hermite(swing, keys, [0, 0, 0, 0],
+                                  [gait.liftoff_speed, 0, -gait.landing_speed, -gait.landing_speed]))
+        ball[:, 2] = BALL_HEIGHT[side] + act * lift
         kp, kv = np.array(gait.foot_pitch_keys).T
-        pitch = _keys(phase, kp, kv)
+        pitch = roll_over * _keys(phase, kp, kv)
         release = np.clip((phase - gait.duty) / gait.toe_release, 0, 1)
         regrip = np.clip((phase - 0.9) / 0.1, 0, 1)
-        toe_flat = 1 - _minjerk(release) + _minjerk(regrip)
+        toe_flat = 1 - act * (_minjerk(release) - _minjerk(regrip))
         legs[side] = _Leg(ball, yaw0 + sw[:, 0] * (yaw1 - yaw0), pitch, toe_flat, phase < gait.duty)
 
     # Pelvis: rotates with the forward leg, sways and rolls over the stance foot.
-    cyc = 2 * np.pi * (t - first_td["L"]) / gait.stride  # 0 at left touchdown
+    cyc = 2 * np.pi * (cycles(t) - first_td["L"])  # 0 at left touchdown
     mid_cyc = cyc - np.pi * gait.duty  # 0 at left mid-stance
-    yaw_osc = -gait.yaw_swing * np.cos(cyc)  # left hip forward (negative yaw) at left touchdown
-    roll = gait.roll_swing * np.cos(mid_cyc)  # swing side (right) drops during left stance
-    lean_in = -np.arctan(speed * yaw_rate(t) / GRAVITY)  # bank into the curve
-    sway = gait.sway * np.cos(mid_cyc)
+    yaw_osc = -act * gait.yaw_swing * np.cos(cyc)  # left hip forward (negative yaw) at left touchdown
+    roll = act * gait.roll_swing * np.cos(mid_cyc)  # swing side (right) drops during left stance
+    lean_in = -np.arctan(speed(t) * yaw_rate(t) / GRAVITY)  # bank into the curve
+    sway = act * gait.sway * np.cos(mid_cyc)
     pos = np.zeros((n, 3))
     pos[:, :2] = path_xy + sway[:, None] * np.stack([-np.sin(heading), np.cos(heading)], -1)
     quat = _rot(heading + yaw_osc, gait.pelvis_pitch, roll + lean_in)
@@ -466,10 +508,11 @@ def _locomotion(name, duration, gait: _Gait, speed: float, yaw_rate=lambda t: 0 
     arms = {}
     for side, s in SIDES.items():
         # Each arm swings with the opposite leg: back when its own leg is forward.
-        swing_fwd = -np.cos(2 * np.pi * phase_of[side])
+        swing_fwd = -act * np.cos(2 * np.pi * phase_of[side])
         flex = gait.arm_flex + gait.arm_swing * swing_fwd
         elbow = gait.elbow + gait.elbow_swing * 0.5 * (1 + swing_fwd)
-        arms[side] = _arm(t, side, flex, 10 * DEG, elbow)
+        pose = (flex, 10 * DEG, elbow) if arm_pose is None else arm_pose(t, side, flex, 10 * DEG, elbow)
+        arms[side] = _arm(t, side, *pose)
     spec = _Spec(t, pos, quat, legs, arms, angles)
 
     # Every frame bounds the height, swing included: a leg that could not reach its target would
@@ -480,23 +523,33 @@ def _locomotion(name, duration, gait: _Gait, speed: float, yaw_rate=lambda t: 0 
                             for s in SIDES))
     else:
         zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
+    # A steady gait keeps one height (the lowest the legs need over the clip); a changing one
+    # follows the lowest over each stride, smoothly, so a slow stretch is not crouched.
+    steady = np.ptp(speed(t_fine)) == 0 and np.all(act == 1.0)
+    radius = n if steady else int(round(np.mean(stride_t) * FPS))
     if gait.flight:
         # Spring-mass stance joined C1 to ballistic flights: flight lasts t_f, leaves and lands at
         # vertical speed v = g t_f / 2; a half sine in stance reverses that velocity.
         t_f = gait.stride / 2 - stance
         v = GRAVITY * t_f / 2
-        tau = np.mod(t - first_td["L"], gait.stride / 2)  # time since the last touchdown
+        tau = np.mod(t - first_td["L"] * gait.stride, gait.stride / 2)  # time since the last touchdown
         shape = np.where(tau < stance, -(v * stance / np.pi) * np.sin(np.pi * tau / stance),
                          v * (tau - stance) - 0.5 * GRAVITY * (tau - stance) ** 2)
         # Only stance frames bound the height here: in the air a swing foot that the leg cannot
         # quite reach just stays a little higher.
         grounded = legs["L"].grounded | legs["R"].grounded
-        spec.pelvis_pos[:, 2] = np.min((zmax - shape)[grounded]) - 0.002 + shape
+        bound = np.where(grounded, zmax - shape, np.inf)
+        if steady:
+            base = np.min(bound)
+        else:  # flight frames take the bound of the stance around them
+            bound = np.interp(t, t[grounded], bound[grounded])
+            base = _running_min_smooth(bound, radius)
+        spec.pelvis_pos[:, 2] = base - 0.002 + shape
     else:
         # Walking: the pelvis vaults over each stance leg like an inverted pendulum (highest at
         # mid-stance), as high as the legs allow.
-        shape = gait.bob * np.cos(2 * mid_cyc)
-        spec.pelvis_pos[:, 2] = np.min(zmax - shape) - 0.002 + shape
+        shape = act * gait.bob * np.cos(2 * mid_cyc)
+        spec.pelvis_pos[:, 2] = _running_min_smooth(zmax - shape, radius) - 0.002 + shape
     return _raw(name, spec, _solve(spec))
 
 

@@ -43,10 +43,10 @@ from ..rotations import (
 )
 from ..humanoid.kinematics import forward_kinematics
 from .motion import FPS, RawMotion
+from .plausibility import GRAVITY, centre_of_mass
 
 CLIP_NAMES: tuple[str, ...] = ("stand", "walk", "run", "turn", "jump", "kick", "gesture", "crouch")
 CLIPS_DIR = Path(__file__).resolve().parent / "clips"
-GRAVITY = 9.81
 DEG = np.pi / 180.0
 
 SKELETON = MEAN_SKELETON
@@ -281,13 +281,7 @@ def _solve(spec: _Spec) -> np.ndarray:
 
 
 def _centre_of_mass(root_pos, local) -> np.ndarray:
-    pos, quat = forward_kinematics(root_pos, local, OFFSETS)
-    centres = []
-    for g in SKELETON.geoms:
-        centres.append(np.reshape(g.fromto, (2, 3)).mean(0) if g.kind == "capsule" else np.asarray(g.pos))
-    world = pos + quat_apply(quat, np.array(centres))
-    masses = np.array([g.mass for g in SKELETON.geoms])
-    return np.einsum("tbi,b->ti", world, masses) / masses.sum()
+    return centre_of_mass(*forward_kinematics(root_pos, local, OFFSETS), SKELETON)
 
 
 def _support_point(spec: _Spec, weight_left) -> np.ndarray:

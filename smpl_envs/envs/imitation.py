@@ -33,7 +33,11 @@ Reward (REFERENCE.md section 3, the anchors' code form, each term in `info["rewa
     lin_vel 0.1 exp(-0.1 mean ||v_ref - v||^2)
     ang_vel 0.1 exp(-0.1 mean ||w_ref - w||^2)
     energy  -0.00001 sum_j |tau_j qdot_j|   (torques of the last physics substep)
-The means run over the 24 bodies (and xyz); weights and scales are `gym.make` kwargs.
+    action_rate  -action_rate_weight mean_j (a_j - a_prev_j)^2   (off by default; 0 on an
+                 episode's first step)
+The means run over the 24 bodies (and xyz); weights and scales are `gym.make` kwargs. The action
+rate term, for smoother control (a policy's step-to-step action changes are what makes its
+motion jerky), is named in `info` only when its weight is set.
 
 Actions: `action_mode="absolute"` (PHC's, the default: PD target = pi x a per hinge, 5 x a for
 knee flexion) or `"residual"` (PD target = next reference frame's joint angles + residual_scale
@@ -138,13 +142,20 @@ class ImitationVecEnv(HumanoidVecEnv):
     def __init__(self, num_envs: int = 1, *, motions="walk", reward_weights: dict | None = None,
                  reward_scales: dict | None = None, energy_weight: float = ENERGY_WEIGHT,
                  termination_distance: float | None = TERMINATION_DISTANCE, action_mode: str = "absolute",
-                 residual_scale: float = RESIDUAL_SCALE, recovery: bool | dict = False, **kwargs):
+                 residual_scale: float = RESIDUAL_SCALE, recovery: bool | dict = False,
+                 action_rate_weight: float = 0.0, **kwargs):
         if motions is None:
             raise ValueError("motions: imitation needs reference clips (a clip name, file, directory or list)")
         set_tracking_settings(self, reward_weights, reward_scales, energy_weight, termination_distance,
                               action_mode, residual_scale)
+        self.action_rate_weight = float(action_rate_weight)
+        if not (np.isfinite(self.action_rate_weight) and self.action_rate_weight >= 0):
+            raise ValueError(f"action_rate_weight must be a non-negative number, got {action_rate_weight!r}")
         super().__init__(num_envs, motions=motions, **kwargs)
         self.ref = ReferenceTracker(self.motion_frames, self.num_envs, self.backend)
+        self._prev_action = self.backend.zeros((self.num_envs, self.action_space.shape[-1]))
+        self._first_step = self.backend.zeros(self.num_envs, "bool") | True
+        self._action_rate = self.backend.zeros(self.num_envs)
         self.recovery = None
         if recovery is not False:
             if recovery is True:
@@ -164,12 +175,22 @@ class ImitationVecEnv(HumanoidVecEnv):
     def _reset_task(self, ids, options):
         qpos, qvel = super()._reset_task(ids, options)
         self.ref.begin(ids, self.start_motion[ids], self.start_frame[ids])
+        if self.action_rate_weight:
+            self._first_step[ids] = True
         if self.recovery is not None:
             qpos, qvel = self.recovery.reset(ids, qpos, qvel, self.motion_frames.body_pos[self.ref.frame[ids], 0],
                                              options.get("recovery_start"), self.np_random)
         return qpos, qvel
 
     def _ctrl(self, actions):
+        if self.action_rate_weight:
+            # A world's first action has no predecessor; it is compared with itself (no penalty).
+            m = xp(actions)
+            prev = m.where(self._first_step[:, None], actions, self._prev_action)
+            d = actions - prev
+            self._action_rate = (d * d).sum(axis=-1) * (1.0 / d.shape[-1])
+            self._prev_action[:] = actions
+            self._first_step[:] = False
         return self.ref.pd_targets(actions, self.action_scale, self.action_mode, self.residual_scale)
 
     def _advance(self, active):
@@ -179,6 +200,9 @@ class ImitationVecEnv(HumanoidVecEnv):
         ref = self.ref.current()
         reward, terms = imitation_reward(body, ref, self.sim.actuator_force, self.reward_weights,
                                          self.reward_scales, self.energy_weight)
+        if self.action_rate_weight:
+            terms["action_rate"] = -self.action_rate_weight * self._action_rate
+            reward = reward + terms["action_rate"]
         terminated = (self.backend.zeros(self.num_envs, "bool") if self.termination_distance is None
                       else imitation_terminated(body, ref, self.termination_distance))
         if self.recovery is not None:

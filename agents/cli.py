@@ -453,18 +453,16 @@ class Evaluator:
 
 
 def evaluate_agent(agent, motions=None, num_envs: int = 8, progress: bool = True, **options):
-    """smpl_envs.evaluate of `agent` on the env it trained on, with that env's kwargs as its task's
-    protocol carries them over (motions default: the training ones)."""
+    """smpl_envs.evaluate of `agent` on the env it trained on, which evaluate sets up from the
+    agent's record (its settings, the env kwargs the task's protocol carries over, the training
+    motions unless `motions`)."""
     import smpl_envs
-    from smpl_envs.evaluation import protocol_for
 
     if agent.env_id is None:
         raise RecipeError("the checkpoint records no env id to evaluate on")
     try:
-        protocol = protocol_for(agent.env_id)
-        return smpl_envs.evaluate(agent, env=agent.env_id, motions=motions or agent.env_kwargs.get("motions"),
-                                  num_envs=num_envs, progress=progress,
-                                  env_kwargs=protocol.eval_kwargs(agent.env_kwargs), **options)
+        return smpl_envs.evaluate(agent, env=agent.env_id, motions=motions or None, num_envs=num_envs,
+                                  progress=progress, **options)
     except ValueError as e:  # an option or kwarg the task's protocol refuses
         raise RecipeError(str(e)) from None
 
@@ -518,15 +516,13 @@ def cmd_eval(args) -> int:
 # ---------------------------------------------------------------------------------------- video
 def record_video(agent, path: Path, steps: int, motions=None, fps: float | None = None, seed: int | None = None,
                  progress: bool = True) -> dict:
-    """An mp4 of the deterministic policy in one world of its training env, set up as its task's
-    protocol says (imitation: from the start of a clip)."""
+    """An mp4 of the deterministic policy in one world of its training env, which record sets up
+    from the agent's record as its task's protocol says (imitation: from the start of a clip)."""
     import smpl_envs
-    from smpl_envs.evaluation import protocol_for
 
-    kwargs = protocol_for(agent.env_id).record_kwargs(agent.env_kwargs)
-    motions = motions or agent.env_kwargs.get("motions")
-    if motions is not None:
-        kwargs["motions"] = motions
+    if agent.env_id is None:
+        raise RecipeError("the checkpoint records no env id to record in")
+    kwargs = {"motions": motions} if motions else {}
     return smpl_envs.record(agent.env_id, agent, path, steps=steps, episodes=None, fps=fps, seed=seed,
                             progress=progress, **kwargs)
 

@@ -359,6 +359,14 @@ def _resume_recipe(args) -> tuple[dict, Path, list[str]]:
         if _get_dotted(recipe, key) != _get_dotted(apply_overrides(stored), key):
             raise RecipeError(f"--set {key}: a resumed run keeps the env id, agent class and network sizes "
                               "of its checkpoint")
+    # So does what the policy's actions and observations mean (smpl_envs.policy_settings).
+    from smpl_envs.policy_settings import contradictions
+
+    changed = contradictions(recipe["env"]["id"], apply_overrides(stored)["env"]["kwargs"], recipe["env"]["kwargs"])
+    if changed:
+        name, (given, trained) = next(iter(changed.items()))
+        raise RecipeError(f"--set env.kwargs.{name}={given}: a resumed run keeps the policy settings of its "
+                          f"checkpoint ({name}={trained!r}); train a new run to change it")
     return recipe, run, overrides
 
 

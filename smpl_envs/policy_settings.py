@@ -82,18 +82,25 @@ def with_trained_settings(env_id: str, trained: dict, kwargs: dict, override: It
     """`kwargs` for making `env_id` for a policy trained with env kwargs `trained`: its policy
     settings filled in from `trained`; a value in `kwargs` that contradicts one is a ValueError
     naming it, unless the setting is named in `override`."""
-    cls = task_class(env_id)
-    names = getattr(cls, "policy_kwargs", ())
-    override = _override(override, names, env_id)
-    out = dict(kwargs)
-    for name in names:
-        value = trained.get(name, _default(cls, name))
-        if name not in out:
-            out[name] = value
-        elif out[name] != value and name not in override:
-            raise ValueError(f"{name}={out[name]!r} contradicts the policy's {name}={value!r}, which it was "
+    override = _override(override, getattr(task_class(env_id), "policy_kwargs", ()), env_id)
+    for name, (given, value) in contradictions(env_id, trained, kwargs).items():
+        if name not in override:
+            raise ValueError(f"{name}={given!r} contradicts the policy's {name}={value!r}, which it was "
                              f"trained with; pass override_settings={{{name!r}}} to run it so anyway")
-    return out
+    return {**trained_settings(env_id, trained), **kwargs}
+
+
+def trained_settings(env_id: str, trained: dict) -> dict[str, Any]:
+    """The policy settings of `env_id` that env kwargs `trained` make (defaults where absent)."""
+    cls = task_class(env_id)
+    return {name: trained.get(name, _default(cls, name)) for name in getattr(cls, "policy_kwargs", ())}
+
+
+def contradictions(env_id: str, trained: dict, kwargs: dict) -> dict[str, tuple[Any, Any]]:
+    """{name: (value in `kwargs`, trained value)} of the policy settings of `env_id` that `kwargs`
+    set otherwise than env kwargs `trained` did."""
+    return {name: (kwargs[name], value) for name, value in trained_settings(env_id, trained).items()
+            if name in kwargs and kwargs[name] != value}
 
 
 def check_env(env, trained_id: str | None, trained: dict, override: Iterable[str] = ()) -> None:
@@ -106,11 +113,9 @@ def check_env(env, trained_id: str | None, trained: dict, override: Iterable[str
         raise ValueError(f"the policy was trained on {trained_id}; this env has no registered id to tell its task "
                          "(make it with gym.make or gym.make_vec)")
     check_task(trained_id, env_id)
-    cls = task_class(env_id)
-    override = _override(override, getattr(cls, "policy_kwargs", ()), env_id)
-    for name, value in settings_of(env).items():
-        expected = trained.get(name, _default(cls, name))
-        if value != expected and name not in override:
+    override = _override(override, getattr(task_class(env_id), "policy_kwargs", ()), env_id)
+    for name, (value, expected) in contradictions(env_id, trained, settings_of(env)).items():
+        if name not in override:
             raise ValueError(f"the env runs {name}={value!r}, the policy was trained with {name}={expected!r}; "
                              f"make the env with {name}={expected!r}, or pass override_settings={{{name!r}}} "
                              "to run it so anyway")
@@ -147,4 +152,4 @@ def _bare(env_id: str | None) -> str | None:
 
 
 __all__ = ["training_record", "task_class", "env_id_of", "settings_of", "check_task", "with_trained_settings",
-           "check_env"]
+           "trained_settings", "contradictions", "check_env"]

@@ -262,6 +262,20 @@ def test_bad_setting_on_resume_records_nothing(setting, run, capsys):
     assert (run / "config.yaml").read_text() == config  # the bad value is not written into the run
 
 
+@pytest.mark.parametrize("setting", ["env.kwargs.action_mode=residual", "env.kwargs.substeps=2"])
+def test_resume_keeps_the_policy_settings_of_its_checkpoint(setting, run, capsys):
+    config = (run / "config.yaml").read_text()
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--resume", str(run), "--set", setting, *TINY])
+    assert exc.value.code == 2
+    err = one_error_line(capsys)
+    assert f"--set {setting}" in err and "keeps the policy settings" in err
+    assert (run / "config.yaml").read_text() == config
+    # Stating the value it was trained with (here the default) is no change.
+    assert main(["train", "--resume", str(run), "--set", "env.kwargs.action_mode=absolute",
+                 "--set", "train.total_timesteps=80", *TINY]) == 0
+
+
 @pytest.mark.parametrize("argv", [["--num-envs", "-2"], ["--device", "cdua"]])
 def test_eval_bad_options_are_one_error(argv, base_run, capsys):
     with pytest.raises(SystemExit) as exc:

@@ -21,7 +21,7 @@ rollout hooks that turn each step's frames into windows stored in the rollout bu
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 import torch
@@ -213,8 +213,9 @@ class AMP(PPO):
         self.disc_optimizer = adam(self.disc.net.parameters(), lr=cfg.disc_learning_rate)
         self.replay = ReplayBuffer(cfg.replay_size, self.frame_dim * cfg.amp_num_frames, self.device)
 
-    def set_env(self, env, n_envs: int = 1, env_kwargs: dict | None = None) -> None:
-        super().set_env(env, n_envs, env_kwargs)
+    def set_env(self, env, n_envs: int = 1, env_kwargs: dict | None = None,
+                override_settings: Iterable[str] = ()) -> None:
+        super().set_env(env, n_envs, env_kwargs, override_settings)
         self.motion_lib = reference_motion(self.env)
         self._demo_rng = np.random.default_rng(self.config.seed)
         self._frame_table = self._build_frame_table()

@@ -14,6 +14,10 @@ eval.txt and curves.png. Mistakes in what the user typed end in one `error: ...`
 status 2; anything else is a bug and keeps its traceback. Settings are checked by building the
 env and the agent before the run directory is created (or `--overwrite` deletes the old one).
 
+One training per run directory: a live run holds RUN/.lock (`recipes.RunLock`: an flock, with its
+process id), so a second start into it, `--overwrite` of it or `--resume` of it is refused,
+naming that process. The kernel drops the lock when the process ends, however it ends.
+
 Stopping and resuming: Ctrl-C or SIGTERM (schedulers, `timeout`) saves checkpoints/last.pt and
 prints the `--resume` command (exit status 130 / 143). `--resume` starts from last.pt or, when
 that does not read back intact, from the newest intact ckpt_*.pt (saying so); its logs continue
@@ -33,8 +37,9 @@ from typing import Any
 
 from .checkpoint import clean_stale_temp_files, newest_readable_checkpoint
 from .plot import EmptyLogError, plot_run, read_progress
-from .recipes import (RecipeError, apply_overrides, available_recipes, check_run_dir_free, find_checkpoint,
-                      is_unused_run_dir, load_recipe, make_run_dir, read_config, run_dir_of)
+from .recipes import (LOCK_NAME, RecipeError, RunLock, apply_overrides, available_recipes, check_run_dir_free,
+                      find_checkpoint, in_use_message, is_unused_run_dir, live_run_pid, load_recipe, make_run_dir,
+                      read_config, run_dir_of)
 
 # Settings a checkpoint fixes: its weights only fit these.
 FIXED_ON_RESUME = ("env.id", "agent.class") + tuple(
@@ -122,7 +127,7 @@ def cmd_train(args) -> int:
     # Everything that can fail on a bad setting (the recipe, the env, the agent, the device) is
     # built before the run directory is created or an old one deleted, so a mistake costs nothing.
     prepare = _prepare_resume if args.resume is not None else _prepare_new
-    recipe, run, agent, evaluator = prepare(args)
+    recipe, run, agent, evaluator, lock = prepare(args)
     try:
         return _train(args, recipe, run, agent, evaluator)
     except BaseException:
@@ -133,37 +138,54 @@ def cmd_train(args) -> int:
         raise
     finally:
         agent.close()
+        lock.release()
 
 
-def _prepare_new(args) -> tuple[dict, Path, Any, "Evaluator"]:
+def _prepare_new(args) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
     if args.recipe is None:
         raise RecipeError("train needs a RECIPE (or --resume RUN_DIR)")
     overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
     recipe = load_recipe(args.recipe, overrides, args.profile)
     root, name = (args.run_dir.parent, args.run_dir.name) if args.run_dir else (args.runs_root, None)
-    if args.run_dir is not None and not args.overwrite:
-        check_run_dir_free(args.run_dir)  # refuse before the slow part, not after it
+    if args.run_dir is not None:  # refuse before the slow part, not after it
+        if args.overwrite:
+            _check_overwrite(args.run_dir)
+        else:
+            check_run_dir_free(args.run_dir)
     _check_train_settings(recipe)
     agent = _constructed(lambda: _new_agent(args, recipe), recipe)
+    lock = None
     try:
         evaluator = _constructed(lambda: Evaluator(recipe, progress=not args.no_progress), recipe)
-        if args.overwrite and args.run_dir is not None and args.run_dir.is_dir():
-            shutil.rmtree(args.run_dir)
+        if args.run_dir is not None:
+            # Held before anything is deleted or written: a run started meanwhile is refused.
+            lock = RunLock(args.run_dir).acquire()
+            if args.overwrite:
+                _clear_run_dir(args.run_dir)
         run = make_run_dir(recipe, root, name)
+        lock = lock or RunLock(run).acquire()
         _clean_temp_files(run / "checkpoints")
         _attach_logger(agent, run)
     except BaseException:
         agent.close()
+        if lock is not None:
+            lock.release()
         raise
-    return recipe, run, agent, evaluator
+    return recipe, run, agent, evaluator, lock
 
 
-def _prepare_resume(args) -> tuple[dict, Path, Any, "Evaluator"]:
+def _prepare_resume(args) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
     recipe, run, overrides = _resume_recipe(args)
     _check_train_settings(recipe)
-    _clean_temp_files(run / "checkpoints")
-    checkpoint = _resume_checkpoint(run)
-    agent = _constructed(lambda: _resume_agent(args, recipe, checkpoint, overrides), recipe)
+    # Before the temporary files are cleaned: a live run's would be its saves in progress.
+    lock = RunLock(run).acquire()
+    try:
+        _clean_temp_files(run / "checkpoints")
+        checkpoint = _resume_checkpoint(run)
+        agent = _constructed(lambda: _resume_agent(args, recipe, checkpoint, overrides), recipe)
+    except BaseException:
+        lock.release()
+        raise
     try:
         evaluator = _constructed(lambda: Evaluator(recipe, progress=not args.no_progress), recipe)
         # Only now that the overrides proved usable are they recorded in config.yaml.
@@ -171,8 +193,26 @@ def _prepare_resume(args) -> tuple[dict, Path, Any, "Evaluator"]:
         _attach_logger(agent, run, resume_step=agent.num_timesteps)
     except BaseException:
         agent.close()
+        lock.release()
         raise
-    return recipe, run, agent, evaluator
+    return recipe, run, agent, evaluator, lock
+
+
+def _check_overwrite(run: Path) -> None:
+    pid = live_run_pid(run)
+    if pid is not None:
+        raise RecipeError(f"--overwrite would delete a live run: {in_use_message(run, pid)}")
+
+
+def _clear_run_dir(run: Path) -> None:
+    """--overwrite: delete everything in `run` but the lock file, which this process holds."""
+    for entry in run.iterdir():
+        if entry.name == LOCK_NAME:
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
 
 
 def _train(args, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
@@ -296,7 +336,8 @@ def _attach_logger(agent, run: Path, resume_step: int | None = None) -> None:
 
 
 def _clean_temp_files(directory: Path) -> None:
-    # A run directory has one writer, so any temporary checkpoint file in it is a killed save's.
+    # A run directory has one writer (its RunLock), so any temporary checkpoint file in it is a
+    # killed save's.
     removed = clean_stale_temp_files(directory)
     if removed:
         print(f"removed {len(removed)} temporary file(s) left by an interrupted save: "
@@ -318,6 +359,14 @@ def _resume_recipe(args) -> tuple[dict, Path, list[str]]:
         if _get_dotted(recipe, key) != _get_dotted(apply_overrides(stored), key):
             raise RecipeError(f"--set {key}: a resumed run keeps the env id, agent class and network sizes "
                               "of its checkpoint")
+    # So does what the policy's actions and observations mean (smpl_envs.policy_settings).
+    from smpl_envs.policy_settings import contradictions
+
+    changed = contradictions(recipe["env"]["id"], apply_overrides(stored)["env"]["kwargs"], recipe["env"]["kwargs"])
+    if changed:
+        name, (given, trained) = next(iter(changed.items()))
+        raise RecipeError(f"--set env.kwargs.{name}={given}: a resumed run keeps the policy settings of its "
+                          f"checkpoint ({name}={trained!r}); train a new run to change it")
     return recipe, run, overrides
 
 
@@ -453,18 +502,16 @@ class Evaluator:
 
 
 def evaluate_agent(agent, motions=None, num_envs: int = 8, progress: bool = True, **options):
-    """smpl_envs.evaluate of `agent` on the env it trained on, with that env's kwargs as its task's
-    protocol carries them over (motions default: the training ones)."""
+    """smpl_envs.evaluate of `agent` on the env it trained on, which evaluate sets up from the
+    agent's record (its settings, the env kwargs the task's protocol carries over, the training
+    motions unless `motions`)."""
     import smpl_envs
-    from smpl_envs.evaluation import protocol_for
 
     if agent.env_id is None:
         raise RecipeError("the checkpoint records no env id to evaluate on")
     try:
-        protocol = protocol_for(agent.env_id)
-        return smpl_envs.evaluate(agent, env=agent.env_id, motions=motions or agent.env_kwargs.get("motions"),
-                                  num_envs=num_envs, progress=progress,
-                                  env_kwargs=protocol.eval_kwargs(agent.env_kwargs), **options)
+        return smpl_envs.evaluate(agent, env=agent.env_id, motions=motions or None, num_envs=num_envs,
+                                  progress=progress, **options)
     except ValueError as e:  # an option or kwarg the task's protocol refuses
         raise RecipeError(str(e)) from None
 
@@ -518,15 +565,13 @@ def cmd_eval(args) -> int:
 # ---------------------------------------------------------------------------------------- video
 def record_video(agent, path: Path, steps: int, motions=None, fps: float | None = None, seed: int | None = None,
                  progress: bool = True) -> dict:
-    """An mp4 of the deterministic policy in one world of its training env, set up as its task's
-    protocol says (imitation: from the start of a clip)."""
+    """An mp4 of the deterministic policy in one world of its training env, which record sets up
+    from the agent's record as its task's protocol says (imitation: from the start of a clip)."""
     import smpl_envs
-    from smpl_envs.evaluation import protocol_for
 
-    kwargs = protocol_for(agent.env_id).record_kwargs(agent.env_kwargs)
-    motions = motions or agent.env_kwargs.get("motions")
-    if motions is not None:
-        kwargs["motions"] = motions
+    if agent.env_id is None:
+        raise RecipeError("the checkpoint records no env id to record in")
+    kwargs = {"motions": motions} if motions else {}
     return smpl_envs.record(agent.env_id, agent, path, steps=steps, episodes=None, fps=fps, seed=seed,
                             progress=progress, **kwargs)
 

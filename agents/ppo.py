@@ -20,7 +20,7 @@ import time
 import warnings
 from collections import deque
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import gymnasium as gym
 import numpy as np
@@ -228,8 +228,28 @@ class PPO:
         self.optimizer = adam(params, lr=cfg.learning_rate, eps=1e-5)
         self._collector = None
 
-    def set_env(self, env, n_envs: int = 1, env_kwargs: dict | None = None) -> None:
-        """Attach an env to train on; its spaces must match the policy's."""
+    def set_env(self, env, n_envs: int = 1, env_kwargs: dict | None = None,
+                override_settings: Iterable[str] = ()) -> None:
+        """Attach an env to train on; its spaces must match the policy's. An agent whose policy
+        has a recorded env (a loaded one) keeps to it (`smpl_envs.policy_settings`): an env id
+        must be its task, and gets its policy settings (action_mode, residual_scale, substeps
+        ...) unless `env_kwargs` sets them; an env must be its task, made with those settings.
+        A contradicting value is a ValueError naming the setting, unless the setting is named
+        in `override_settings`.
+
+        The agent then records this env: its id and kwargs, its policy settings included, as
+        `save` writes them into checkpoints."""
+        from smpl_envs import policy_settings
+
+        trained = hasattr(self, "policy") and self.env_id is not None
+        if not trained and override_settings:
+            raise ValueError("override_settings is for an agent with a recorded env (a loaded one); this one has none")
+        if trained and isinstance(env, str):
+            policy_settings.check_task(self.env_id, env)
+            env_kwargs = policy_settings.with_trained_settings(env, self.env_kwargs, env_kwargs or {},
+                                                               override_settings)
+        elif trained:
+            policy_settings.check_env(env, self.env_id, self.env_kwargs, override_settings)
         vec = make_vec_env(env, n_envs, env_kwargs)
         if hasattr(self, "policy"):
             if vec.single_observation_space.shape != (self.obs_dim,) or vec.single_action_space.shape != (self.act_dim,):
@@ -237,11 +257,13 @@ class PPO:
                     f"env spaces obs {vec.single_observation_space.shape} / action {vec.single_action_space.shape} "
                     f"do not match the agent's ({self.obs_dim},) / ({self.act_dim},)")
         self.env = vec
+        # The settings are read from the env itself, so a checkpoint names them even where they
+        # were defaults (a later default cannot change what an old policy runs with).
         if isinstance(env, str):
-            self.env_id, self.env_kwargs = env, dict(env_kwargs or {})
+            self.env_id, self.env_kwargs = env, {**(env_kwargs or {}), **policy_settings.settings_of(vec)}
         else:
-            spec = getattr(vec, "spec", None) or getattr(env, "spec", None)
-            self.env_id = spec.id if spec is not None else None
+            self.env_id = policy_settings.env_id_of(env)
+            self.env_kwargs = {**(self.env_kwargs if trained else {}), **policy_settings.settings_of(env)}
         self._collector = None  # the next rollout starts with a reset of this env
 
     def set_logger(self, log_dir: str | Path | None = None, tensorboard: bool = True) -> None:
@@ -474,10 +496,12 @@ class PPO:
     def load(cls, path: str | Path, env=None, device: str | torch.device = "auto", *,
              n_envs: int | None = None, env_kwargs: dict | None = None, policy: Policy | None = None,
              verbose: int = 1, log_dir: str | Path | None = None, tensorboard: bool = True,
-             **overrides) -> "PPO":
+             override_settings: Iterable[str] = (), **overrides) -> "PPO":
         """Rebuild an agent from `save`'s file. With `env` (an env, or "auto" to make the recorded
-        env id with its recorded kwargs) it can continue training: call
-        `learn(..., reset_num_timesteps=False)`. `overrides` replace saved hyperparameters
+        env id with its recorded kwargs, `env_kwargs` over them) it can continue training: call
+        `learn(..., reset_num_timesteps=False)`. The env must be the recorded task, with the
+        policy's recorded settings (`set_env`; `override_settings` names those `env_kwargs`
+        or the env may change on purpose). `overrides` replace saved hyperparameters
         (learning rate, epochs ... not network sizes). `policy`: a fresh policy of the kind
         that was saved, when it was not the default `ActorCritic`; the saved weights go into it."""
         device = resolve_device(device)
@@ -504,7 +528,9 @@ class PPO:
             env_kwargs = {**agent.env_kwargs, **(env_kwargs or {})}
             n_envs = n_envs or ckpt["env"]["n_envs"] or 1
         if env is not None:
-            agent.set_env(env, n_envs=n_envs or 1, env_kwargs=env_kwargs)
+            agent.set_env(env, n_envs=n_envs or 1, env_kwargs=env_kwargs, override_settings=override_settings)
+        elif override_settings:
+            raise ValueError("override_settings applies to the env load attaches; pass env= too")
         agent._load_extra_state(ckpt["extra"])
         agent.set_logger(log_dir, tensorboard)
         return agent

@@ -28,8 +28,14 @@ import yaml
 
 from . import AGENTS
 
+try:
+    import fcntl
+except ImportError:  # Windows: no flock
+    fcntl = None
+
 CONFIG_NAME = "config.yaml"
 RUN_SUBDIRS = ("checkpoints", "logs", "videos")
+LOCK_NAME = ".lock"  # a live run's hold on its directory (`RunLock`), with its process id
 
 # Every key a section may hold, with its default. `env.kwargs` and `agent.hyperparams` are free
 # form here; the hyperparameters are checked against the agent class's constructor instead.
@@ -370,10 +376,14 @@ def make_run_dir(recipe: dict, root: str | os.PathLike = "runs", name: str | Non
 
 
 def check_run_dir_free(run: str | os.PathLike) -> None:
-    """Refuse `run` as a new run's directory when it exists and is not empty, with advice that
-    fits what it holds: --resume only helps a run that saved a checkpoint."""
+    """Refuse `run` as a new run's directory when a live training holds it (naming its process),
+    or when it exists and is not empty, with advice that fits what it holds: --resume only helps
+    a run that saved a checkpoint. The lock file alone does not count, nor this process's lock."""
     run = Path(run)
-    if not run.exists() or (run.is_dir() and not any(run.iterdir())):
+    pid = live_run_pid(run)
+    if pid is not None and pid != os.getpid():
+        raise RecipeError(in_use_message(run, pid))
+    if not run.exists() or (run.is_dir() and all(e.name == LOCK_NAME for e in run.iterdir())):
         return
     if run.is_dir() and is_unused_run_dir(run):
         raise RecipeError(f"run directory {run} already exists, holding only the config.yaml of a start that "
@@ -389,12 +399,82 @@ def is_unused_run_dir(run: str | os.PathLike) -> bool:
     if not run.is_dir():
         return False
     for entry in run.iterdir():
-        if entry.name == CONFIG_NAME and entry.is_file():
+        if entry.name in (CONFIG_NAME, LOCK_NAME) and entry.is_file():
             continue
         if entry.name in RUN_SUBDIRS and entry.is_dir() and not any(p.is_file() for p in entry.rglob("*")):
             continue
         return False
     return True
+
+
+class RunLock:
+    """One training at a time in a run directory: an exclusive `flock` on RUN/.lock, which holds
+    the owner's process id. The kernel drops the lock when its process ends, however it ends
+    (Ctrl-C, SIGKILL, a crash, a reboot), so it is never left stale; the file stays behind,
+    harmless, since only a held lock counts. Without `fcntl` (Windows) nothing is locked."""
+
+    def __init__(self, run: str | os.PathLike):
+        self.run = Path(run)
+        self.path = self.run / LOCK_NAME
+        self._fd: int | None = None
+
+    def acquire(self) -> "RunLock":
+        """Take the lock (creating the directory); RecipeError names the process of a live run
+        that holds it."""
+        if self.run.exists() and not self.run.is_dir():
+            raise RecipeError(f"run directory {self.run} is a file, not a directory")
+        self.run.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+        if fcntl is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                raise RecipeError(in_use_message(self.run, live_run_pid(self.run))) from None
+        # Written only once the lock is held: a process that failed to take it must not
+        # overwrite the owner's id.
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)  # closing drops the flock
+            self._fd = None
+
+    def __enter__(self) -> "RunLock":
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def live_run_pid(run: str | os.PathLike) -> int | None:
+    """The process id of the live training that holds `run`'s lock (0 when it has not written its
+    id yet), or None when no live training holds it."""
+    path = Path(run) / LOCK_NAME
+    if fcntl is None or not path.is_file():
+        return None
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:  # removed meanwhile (an --overwrite): nobody holds it
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            text = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            return int(text) if text.isdigit() else 0
+        return None  # the lock was free: its run has ended
+    finally:
+        os.close(fd)  # also drops the shared lock just taken
+
+
+def in_use_message(run: Path, pid: int | None) -> str:
+    who = f"process {pid}" if pid else "a process that has not written its id yet"
+    return (f"run directory {run} is in use by a live training ({who}); two trainings never write into one "
+            "run directory: wait for that one to end or stop it")
 
 
 def write_config(run: str | os.PathLike, recipe: dict) -> Path:
@@ -460,6 +540,7 @@ def run_dir_of(checkpoint: str | os.PathLike) -> Path | None:
 
 
 __all__ = ["RecipeError", "load_recipe", "apply_overrides", "validate_recipe", "parse_override", "parse_value",
-           "set_dotted", "make_run_dir", "check_run_dir_free", "is_unused_run_dir", "read_config", "write_config",
+           "set_dotted", "make_run_dir", "check_run_dir_free", "is_unused_run_dir", "RunLock", "live_run_pid",
+           "read_config", "write_config",
            "find_checkpoint", "run_dir_of",
            "available_recipes", "recipe_dirs", "resolve_recipe_path", "accepted_hyperparams", "pretrained_checkpoints"]

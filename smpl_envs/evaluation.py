@@ -43,7 +43,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
@@ -261,28 +261,52 @@ def protocol_for(env) -> EvalProtocol:
 
 # ---------------------------------------------------------------------------------------- entry point
 def evaluate(policy: Callable, env="SMPL/Imitation-v0", *, motions=None, num_envs: int = 8,
-             progress: bool = True, env_kwargs: dict | None = None, **options) -> EvalResult:
+             progress: bool = True, env_kwargs: dict | None = None, override_settings: Iterable[str] = (),
+             **options) -> EvalResult:
     """Measure `policy` on a task with the task's own protocol (module docstring).
 
     policy: callable from observations (N, D) float32 to actions (N, 69); a returned tuple
         (e.g. stable-baselines' `predict`, which returns (actions, state)) counts by its first item.
+        A policy that records its training (an `agents` agent, or its bound `predict`) runs in
+        the env it was trained in (`smpl_envs.policy_settings`): only on its task; with its
+        policy settings (action_mode, residual_scale, substeps ...); with the rest of its
+        training env kwargs as the protocol carries them over, under `env_kwargs`; and on its
+        training motions unless `motions` says otherwise.
     env: a registered task id (an env of at most `num_envs` worlds is made with `motions` and
         `env_kwargs`, and closed afterwards), or an existing suite vec env made with
         autoreset_mode="Disabled" (imitation also: termination_distance=None, no
         max_episode_steps); it is reset with the protocol's seed. An env on the "warp"
         backend (env_kwargs backend="warp") is read through `wrappers.NumpyVecEnv`.
+    override_settings: the names of policy settings that `env_kwargs` (or the existing env)
+        may set to other values than the policy was trained with; any other contradiction of
+        them is a ValueError naming the setting.
     options: the protocol's own (imitation: threshold=0.5; episode tasks: episodes=32, seed=0).
     """
+    from . import policy_settings
+
+    trained = policy_settings.training_record(policy)
+    if trained is None and override_settings:
+        raise ValueError("override_settings is for a policy that records its training settings (an agent); "
+                         "this policy records none")
     protocol = protocol_for(env)
     options = protocol.check_options(options)
     made = isinstance(env, str)
     if made:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        env = protocol.make_env(env, motions, int(num_envs), dict(env_kwargs or {}), progress, options)
+        env_kwargs = dict(env_kwargs or {})
+        if trained is not None:
+            trained_id, trained_kwargs = trained
+            policy_settings.check_task(trained_id, env)
+            env_kwargs = policy_settings.with_trained_settings(
+                env, trained_kwargs, {**protocol.eval_kwargs(trained_kwargs), **env_kwargs}, override_settings)
+            motions = trained_kwargs.get("motions") if motions is None else motions
+        env = protocol.make_env(env, motions, int(num_envs), env_kwargs, progress, options)
     elif motions is not None or env_kwargs is not None:
         raise ValueError("motions and env_kwargs are only for an env id; an existing env is "
                          "evaluated as it was made")
+    elif trained is not None:
+        policy_settings.check_env(env, *trained, override_settings)
     if getattr(env, "metadata", {}).get("backend", "cpu") != "cpu":
         from .wrappers import NumpyVecEnv  # the protocols count in NumPy; the physics stays on the device
 

@@ -82,13 +82,22 @@ def write_strip(path: str | Path, frames: list[np.ndarray], columns: int | None 
 
 
 def record(env, policy, path: str | Path, *, steps: int | None = None, episodes: int | None = 1,
-           fps: float | None = None, seed: int | None = None, progress: bool = True, **make_kwargs) -> dict:
+           fps: float | None = None, seed: int | None = None, progress: bool = True,
+           override_settings: Iterable[str] = (), **make_kwargs) -> dict:
     """Roll `policy` out in a single env and stream its frames to an mp4 at `path`.
 
     env: an env id (made with `gym.make(env, render_mode="rgb_array", **make_kwargs)` and closed
         afterwards) or a single env already made with render_mode="rgb_array" (left open).
     policy: a callable obs -> action, or "zero" (all-zero actions: the humanoid collapses) or
         "reference" (`env.unwrapped.reference_action()`: PD tracking of the reference).
+        A policy that records its training (an `agents` agent) runs in the env it was trained
+        in (`smpl_envs.policy_settings`): only on its task; with its policy settings
+        (action_mode, residual_scale, substeps ...); with the rest of its training env kwargs
+        as its task's protocol sets a video up (imitation: from a clip's first frame), under
+        `make_kwargs`; and on its training motions unless `motions=` says otherwise.
+    override_settings: the names of policy settings `make_kwargs` (or the existing env) may set
+        to other values than the policy was trained with; any other contradiction of them is a
+        ValueError naming the setting.
     Runs `episodes` episodes, or stops after `steps` steps in all, whichever comes first (None
     lifts either bound). A frame is rendered after every reset and every step, so the video has
     steps + episodes frames. `seed` seeds the first reset only; later resets continue its stream.
@@ -103,11 +112,21 @@ def record(env, policy, path: str | Path, *, steps: int | None = None, episodes:
         raise ValueError("record needs a bound: pass steps=, episodes= or both")
     if (steps is not None and steps < 1) or (episodes is not None and episodes < 1):
         raise ValueError(f"steps and episodes must be >= 1 (or None), got steps={steps}, episodes={episodes}")
+    from . import policy_settings
+
+    trained = policy_settings.training_record(policy)
+    if trained is None and override_settings:
+        raise ValueError("override_settings is for a policy that records its training settings (an agent); "
+                         "this policy records none")
     owned = isinstance(env, str)
     if owned:
+        if trained is not None:
+            make_kwargs = _trained_make_kwargs(env, *trained, make_kwargs, override_settings)
         env = gym.make(env, render_mode="rgb_array", **make_kwargs)
     elif make_kwargs:
         raise TypeError(f"keyword arguments {sorted(make_kwargs)} are for gym.make and need an env id, not an env")
+    elif trained is not None:
+        policy_settings.check_env(env, *trained, override_settings)
     try:
         # A vector env renders but steps batches; record drives one episode at a time.
         if isinstance(env, gym.vector.VectorEnv) or not isinstance(env, gym.Env):
@@ -145,6 +164,21 @@ def record(env, policy, path: str | Path, *, steps: int | None = None, episodes:
             env.close()
     return {"path": str(path), "frames": stats["frames"], "steps": stats["steps"],
             "episodes": len(stats["returns"]), "reward": sum(stats["returns"]), "returns": stats["returns"]}
+
+
+def _trained_make_kwargs(env_id: str, trained_id: str | None, trained: dict, make_kwargs: dict,
+                         override: Iterable[str]) -> dict:
+    """gym.make kwargs for a video of a policy trained on `trained_id` with env kwargs `trained`."""
+    from . import policy_settings
+    from .evaluation import protocol_for
+
+    policy_settings.check_task(trained_id, env_id)
+    carried = {}
+    if policy_settings.task_class(env_id) is not None:  # a suite task: its protocol says what carries over
+        carried = protocol_for(env_id).record_kwargs(trained)
+        if trained.get("motions") is not None:
+            carried["motions"] = trained["motions"]
+    return policy_settings.with_trained_settings(env_id, trained, {**carried, **make_kwargs}, override)
 
 
 def _resolve_policy(env, policy):

@@ -289,7 +289,9 @@ def test_save_warns_about_env_kwargs_it_cannot_store(tmp_path):
     model = PPO("SMPL/Imitation-v0", n_envs=1, env_kwargs={"motions": lib, "start": "beginning"}, **TINY)
     with pytest.warns(UserWarning, match=r"\['motions'\]"):
         model.save(tmp_path / "m.pt")
-    assert agents.load(tmp_path / "m.pt").env_kwargs == {"start": "beginning"}
+    # The rest is kept, and the policy settings are recorded even where they were defaults.
+    assert agents.load(tmp_path / "m.pt").env_kwargs == {"start": "beginning", "substeps": 4,
+                                                         "action_mode": "absolute", "residual_scale": 0.25}
 
 
 def test_amp_demo_windows_from_frame_table_match_the_motion_library(monkeypatch):

@@ -3,10 +3,12 @@
 Each test reproduces one fault of the issue of that name: a SIGTERM that ended training without a
 checkpoint, logs of a killed run repeated after `--resume`, a truncated last.pt that stopped a
 resume with intact checkpoints beside it, bad settings that gave tracebacks after `--overwrite`
-had deleted the old run, failed starts that left unusable run directories, and temporary files
-of interrupted saves that stayed forever. Budgets are tiny: 2 worlds x 8 steps per iteration.
+had deleted the old run, failed starts that left unusable run directories, a second training
+started into (or `--overwrite` of) a live run, and temporary files of interrupted saves that
+stayed forever. Budgets are tiny: 2 worlds x 8 steps per iteration.
 """
 import csv
+import multiprocessing
 import os
 import shutil
 import signal
@@ -21,6 +23,7 @@ import agents
 from agents import PPO
 from agents.cli import INTERRUPTED, TERMINATED, main
 from agents.logger import Logger
+from agents.recipes import RUN_SUBDIRS, RunLock, live_run_pid, load_recipe, write_config
 
 STEPS_PER_ITERATION = 16  # env.num_envs x n_steps below
 TINY = ["--set", "env.num_envs=2", "--set", "agent.hyperparams.n_steps=8", "--set", "agent.hyperparams.batch_size=16",
@@ -124,7 +127,7 @@ def test_sigterm_saves_a_resumable_checkpoint(tmp_path, monkeypatch, capsys, sig
     assert agents.load(run / "checkpoints" / "last.pt").num_timesteps == 64
 
 
-def test_sigterm_to_a_training_process(tmp_path):
+def test_sigterm_to_a_training_process(tmp_path, capsys):
     """What `timeout` or a scheduler does: SIGTERM to a real `python -m agents train` mid-run."""
     run = tmp_path / "run"
     env = {**os.environ, "SMPL_ENVS_CACHE": str(tmp_path / "cache")}
@@ -138,6 +141,11 @@ def test_sigterm_to_a_training_process(tmp_path):
             assert proc.poll() is None, proc.stderr.read()
             assert time.monotonic() < deadline, "training logged nothing in 300 s"
             time.sleep(0.2)
+        # The live run holds its directory: a second start into it is refused, naming it.
+        assert live_run_pid(run) == proc.pid
+        with pytest.raises(SystemExit):
+            main(["train", "demo_walk_ppo", "--run-dir", str(run), "--overwrite", *TINY])
+        assert f"live training (process {proc.pid})" in one_error_line(capsys)
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=120)  # promptly: one iteration plus a save
     finally:
@@ -254,6 +262,20 @@ def test_bad_setting_on_resume_records_nothing(setting, run, capsys):
     assert (run / "config.yaml").read_text() == config  # the bad value is not written into the run
 
 
+@pytest.mark.parametrize("setting", ["env.kwargs.action_mode=residual", "env.kwargs.substeps=2"])
+def test_resume_keeps_the_policy_settings_of_its_checkpoint(setting, run, capsys):
+    config = (run / "config.yaml").read_text()
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--resume", str(run), "--set", setting, *TINY])
+    assert exc.value.code == 2
+    err = one_error_line(capsys)
+    assert f"--set {setting}" in err and "keeps the policy settings" in err
+    assert (run / "config.yaml").read_text() == config
+    # Stating the value it was trained with (here the default) is no change.
+    assert main(["train", "--resume", str(run), "--set", "env.kwargs.action_mode=absolute",
+                 "--set", "train.total_timesteps=80", *TINY]) == 0
+
+
 @pytest.mark.parametrize("argv", [["--num-envs", "-2"], ["--device", "cdua"]])
 def test_eval_bad_options_are_one_error(argv, base_run, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -294,7 +316,50 @@ def test_leftover_of_a_failed_start_is_not_sent_to_resume(tmp_path, capsys):
     assert main(argv + ["--overwrite"]) == 0
 
 
-# ---------------------------------------------------------------------------------------- 6. temp files
+# ---------------------------------------------------------------------------------------- 6. a live run
+def _hold_run_lock(run, ready) -> None:
+    """A live run's hold on its directory, in a child process (until killed)."""
+    RunLock(run).acquire()
+    ready.set()
+    time.sleep(600)
+
+
+def test_a_live_run_keeps_its_directory_and_a_crash_frees_it(tmp_path, capsys):
+    run = tmp_path / "run"
+    # What a live run looks like in its first seconds: its config and empty subdirectories.
+    for sub in RUN_SUBDIRS:
+        (run / sub).mkdir(parents=True)
+    write_config(run, load_recipe("demo_walk_ppo"))
+    context = multiprocessing.get_context("fork")  # no re-import: the child only holds the lock
+    ready = context.Event()
+    holder = context.Process(target=_hold_run_lock, args=(run, ready), daemon=True)
+    holder.start()
+    argv = ["train", "demo_walk_ppo", "--set", "train.total_timesteps=16", "--run-dir", str(run), *TINY]
+    try:
+        assert ready.wait(60)
+        before = snapshot(run)
+        for command in (argv, argv + ["--overwrite"], ["train", "--resume", str(run), "--no-progress"]):
+            with pytest.raises(SystemExit) as exc:
+                main(command)
+            assert exc.value.code == 2
+            err = one_error_line(capsys)
+            assert f"in use by a live training (process {holder.pid})" in err, command
+            assert "never trained" not in err
+        assert snapshot(run) == before  # nothing deleted, nothing written (the owner's id included)
+    finally:
+        holder.kill()  # SIGKILL: no handler runs, as in a crash
+        holder.join()
+    # The kernel dropped the lock with its process: the directory is what it is again.
+    assert live_run_pid(run) is None
+    with pytest.raises(SystemExit):
+        main(argv)
+    assert "never trained" in one_error_line(capsys)
+    assert main(argv + ["--overwrite"]) == 0
+    assert agents.load(run / "checkpoints" / "last.pt").num_timesteps == 16
+    assert live_run_pid(run) is None  # released when training ended
+
+
+# ---------------------------------------------------------------------------------------- 7. temp files
 def test_stale_temp_files_are_removed_on_resume(run, capsys):
     ckpts = run / "checkpoints"
     stale = [ckpts / ".last.pt.x1y2z3.tmp", ckpts / ".ckpt_000000000096.pt.a1b2c3.tmp"]

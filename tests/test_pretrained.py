@@ -1,4 +1,8 @@
-"""Shipped policies: saved without the optimiser, found by name, loadable anywhere."""
+"""Shipped policies: saved without the optimiser, found by name, loadable anywhere, and run as
+the README shows at the success it reports."""
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -46,11 +50,55 @@ def test_every_shipped_file_is_a_loadable_policy():
 
 def test_shipped_clips_policy_tracks_the_flight_clips():
     # The all-clips policy (README: every clip succeeds) through the evaluation protocol on the
-    # two clips that were learnt last: a change to the env that breaks it fails here.
+    # two clips that were learnt last: a change to the env that breaks it fails here. Its
+    # residual actions come from its checkpoint.
     import smpl_envs
 
     policy = agents.load(find_checkpoint("clips"), device="cpu")
-    result = smpl_envs.evaluate(policy, "SMPL/Imitation-v0", motions=["run", "jump"], num_envs=2, progress=False,
-                                env_kwargs={"action_mode": "residual", "residual_scale": 0.25})
+    result = smpl_envs.evaluate(policy, "SMPL/Imitation-v0", motions=["run", "jump"], num_envs=2, progress=False)
     assert result.summary["success_rate"] == 1.0, result.rows
     assert result.summary["mpjpe_g"] < 100.0
+
+
+# ---------------------------------------------------------------------------------------- the README's examples
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def readme_block(marker: str) -> str:
+    """The one python block of the README that contains `marker`."""
+    (block,) = [b for b in re.findall(r"```python\n(.*?)```", README.read_text(), re.S) if marker in b]
+    return block
+
+
+EVALUATE, RECORD = "result = smpl_envs.evaluate(walk", "video = smpl_envs.record("
+
+
+def test_readme_evaluates_the_shipped_walk_policy_at_its_real_success(capsys):
+    # The README's own lines, no kwargs: the residual policy must run with residual actions.
+    namespace = {}
+    exec(readme_block(EVALUATE), namespace)
+    summary = namespace["result"].summary
+    assert summary["success_rate"] == 1.0 and summary["mpjpe_g"] < 40.0, summary
+    assert "walk" in capsys.readouterr().out  # the table it prints
+
+
+def test_recording_the_shipped_walk_policy_keeps_it_on_the_clip(tmp_path):
+    # The README's record call, shortened: in absolute mode the policy leaves the reference by
+    # 0.3 m (the training termination the video keeps) at step 26.
+    import smpl_envs
+
+    walk = agents.load(find_checkpoint("walk"), device="cpu")
+    video = smpl_envs.record("SMPL/Imitation-v0", walk, tmp_path / "walk.mp4", steps=30, progress=False)
+    assert (video["steps"], video["episodes"]) == (30, 1), video
+
+
+@pytest.mark.slow
+def test_readme_records_the_shipped_walk_policy(tmp_path, monkeypatch):
+    # ~1 minute here: the offscreen renderer takes ~0.3 s a frame on this CPU.
+    monkeypatch.chdir(tmp_path)
+    namespace = {}
+    exec(readme_block(EVALUATE), namespace)
+    exec(readme_block(RECORD), namespace)
+    video = namespace["video"]
+    assert (video["steps"], video["episodes"]) == (180, 1), video  # the whole clip, no fall
+    assert (tmp_path / "out" / "walk.mp4").stat().st_size > 0

@@ -164,13 +164,35 @@ def test_box_pushed_over_scores_one():
 
 
 def test_a_torso_touching_the_box_ends_the_episode_and_the_hand_does_not():
-    env = gym.make_vec("SMPL/Strike-v0", num_envs=4, box_distance=(0.2, 0.2))  # box against the body
-    env.reset(seed=0)
-    _, _, term, _, info = env.step(np.zeros((4, 69)))
+    env = gym.make_vec("SMPL/Strike-v0", num_envs=2, autoreset_mode="Disabled")
+    _, info = env.reset(seed=0)
+    qpos, qvel = env.sim.qpos.copy(), env.sim.qvel.copy()
+    box = slice(env.box_qpos.start, env.box_qpos.start + 2)
+    qpos[0, box] = qpos[0, :2] + [-0.3, 0.0]  # against the back
+    hand = info["body_pos"][1, BODY_NAMES.index("R_Hand")]
+    qpos[1, box] = hand[:2] + [0.0, -(env.box_size[1] / 2 + 0.02)]  # against the outstretched right hand
+    env.sim.set_state([0, 1], qpos, qvel)
+    _, _, term, _, info = env.step(np.zeros((2, 69)))
     touching = info["touching"]
-    assert touching.any(-1).all() and term.all()
-    assert touching[:, [i for i in range(24) if i not in STRIKERS]].any(-1).all()
+    others = [i for i in range(24) if i not in STRIKERS]
+    assert touching[0, others].any() and term[0]
+    assert touching[1, BODY_NAMES.index("R_Hand")] and not touching[1, others].any() and not term[1]
     env.close()
+
+
+def test_a_box_too_close_to_start_clear_of_the_humanoid_is_refused():
+    for distance in [(0.0, 0.0), (0.2, 0.2), (0.5, 4.0), (1.1, 4.0)]:
+        with pytest.raises(ValueError, match=r"box_distance must keep the box clear of the humanoid: at least 1.18 m"):
+            gym.make_vec("SMPL/Strike-v0", num_envs=1, box_distance=distance)
+    with pytest.raises(ValueError, match="at least 1.61 m"):  # a wider box needs more room
+        gym.make("SMPL/Strike-v0", box_distance=(1.5, 4.0), box_size=(1.0, 1.0, 1.8))
+    # The nearest box allowed starts clear of the body in the rest pose and in every kick frame.
+    for motions in (None, "kick"):
+        env = gym.make_vec("SMPL/Strike-v0", num_envs=16, box_distance=(1.19, 1.19), motions=motions,
+                           autoreset_mode="Disabled")
+        _, info = env.reset(seed=0)
+        assert not info["touching"].any(), motions
+        env.close()
 
 
 # ---------------------------------------------------------------------------------------- episodes

@@ -21,6 +21,7 @@ The task interface (all batched over worlds; `ids` are world indices):
 | `_observe(body, heading)` | last | observation (N, 358 + task columns), self observation first |
 | `_markers(world)` | on render | [(positions (K, 3), rgba, radius)] drawn into the frame |
 | `evaluation` (class attribute) | `smpl_envs.evaluate`, `smpl-envs eval` | the task's evaluation protocol (`smpl_envs.evaluation`) |
+| `policy_kwargs` (class attribute) | `smpl_envs.evaluate`, `record`, `agents` loading | the kwargs that give a policy's actions and observations their meaning, each also an attribute holding the env's value: a policy runs only with those it was trained with (`smpl_envs.policy_settings`) |
 
 `body` is the humanoid's `BodyState` in the world frame and `heading` its (N, 3, 3) heading
 rotation, computed once per step and shared by the hooks.
@@ -128,6 +129,8 @@ class HumanoidVecEnv(VectorEnv):
                 "autoreset_mode": AutoresetMode.NEXT_STEP}
     task_layout: ClassVar[dict[str, tuple]] = {}
     evaluation: ClassVar[Any] = None
+    # The control period: a policy trained at one rate acts wrongly at another.
+    policy_kwargs: ClassVar[tuple[str, ...]] = ("substeps",)
     reset_options: ClassVar[tuple[str, ...]] = ("motion_ids", "start")
     backends: ClassVar[tuple[str, ...]] = ("cpu",)
 
@@ -188,7 +191,7 @@ class HumanoidVecEnv(VectorEnv):
         self._configure(spec)
         self.model = spec.compile()
         self.humanoid = humanoid_addresses(self.model)
-        substeps = _positive_int("substeps", substeps)
+        self.substeps = substeps = _positive_int("substeps", substeps)
         if self.backend.name == "cpu":
             self.sim = CPUSim(self.model, self.num_envs, substeps, num_threads, self.humanoid)
         else:

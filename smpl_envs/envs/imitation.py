@@ -136,6 +136,7 @@ class ImitationVecEnv(HumanoidVecEnv):
 
     task_layout = {"goal": IMITATION_GOAL_LAYOUT}
     evaluation = ClipProtocol()
+    policy_kwargs = (*HumanoidVecEnv.policy_kwargs, "action_mode", "residual_scale")  # what an action does
     goal = "rotation"
     backends = ("cpu", "warp")
 

@@ -428,6 +428,10 @@ class RecoveryVecEnv(ImitationVecEnv):
 
     evaluation = RecoveryProtocol()
     backends = ("cpu", "warp")
+    # When and how the observation takes the recovery form.
+    policy_kwargs = (*ImitationVecEnv.policy_kwargs, "switch_distance", "clamp_distance")
+    switch_distance = property(lambda self: self.recovery.switch_distance)
+    clamp_distance = property(lambda self: self.recovery.clamp_distance)
 
     def __init__(self, num_envs: int = 1, *, motions="stand", starts=None, switch_distance=SWITCH_DISTANCE,
                  clamp_distance=CLAMP_DISTANCE, point_scale=POINT_SCALE, point_clip=POINT_CLIP,

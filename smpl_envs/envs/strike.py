@@ -2,9 +2,11 @@
 section 5).
 
 A 0.4 x 0.4 x 1.8 m box of density 30 (8.6 kg, `box_size`, `box_density`) stands upright at
-U[box_distance] (1.5-5 m) from the humanoid at a random bearing. The box is a free body of the
-model (added to the `MjSpec` before compiling) and collides with the humanoid; one MuJoCo contact
-sensor per humanoid body reports whether that body touches the box.
+U[box_distance] (1.5-5 m) from the humanoid at a random bearing; a box_distance that could start
+the box inside or touching the body (under `HUMANOID_REACH` plus the box's half-diagonal from the
+pelvis) is refused. The box is a free body of the model (added to the `MjSpec` before compiling)
+and collides with the humanoid; one MuJoCo contact sensor per humanoid body reports whether that
+body touches the box.
 
 Observation (float32, heading frame):
 
@@ -45,6 +47,10 @@ from .goal import GoalVecEnv
 STRIKERS = [BODY_NAMES.index(n) for n in ("R_Elbow", "R_Wrist", "R_Hand")]  # may touch the box
 TOPPLED = 0.2  # up . up_target below this: the box is down
 FLOOR_REACH = 90.0  # m: boxes stay well inside the 100 m floor
+# m: the farthest the humanoid's geometry reaches horizontally from its pelvis (bounding spheres
+# of its geoms): 0.81 in the rest pose (arms out), 0.87 at most over the shipped clips (kick).
+# A box nearer than this plus its own half-diagonal could start inside or touching the body.
+HUMANOID_REACH = 0.9
 STRIKE_LAYOUT = (
     ("box_pos", 3, "box position relative to the pelvis (m)"),
     ("box_rot", 6, "box rotation, 6D"),
@@ -74,7 +80,8 @@ def strike_episode_metrics(log: dict) -> dict:
 class StrikeVecEnv(GoalVecEnv):
     """`gym.make_vec("SMPL/Strike-v0", num_envs=N, **kwargs)`.
 
-    kwargs: box_distance ((1.5, 5.0) m), box_size ((0.4, 0.4, 1.8) m), box_density (30 kg/m^3),
+    kwargs: box_distance ((1.5, 5.0) m from the pelvis; at least HUMANOID_REACH + the box's
+    half-diagonal, 1.18 m for the default box), box_size ((0.4, 0.4, 1.8) m), box_density (30 kg/m^3),
     and GoalVecEnv's (fall_height, head_height, motions, start, ...).
     """
 
@@ -84,10 +91,15 @@ class StrikeVecEnv(GoalVecEnv):
 
     def __init__(self, num_envs: int = 1, *, box_distance=(1.5, 5.0), box_size=(0.4, 0.4, 1.8),
                  box_density: float = 30.0, **kwargs):
-        self.box_distance = check_range("box_distance", box_distance, 0.0, FLOOR_REACH)
         size = np.asarray(box_size, float)
         if size.shape != (3,) or not (np.isfinite(size).all() and (size > 0).all()):
             raise ValueError(f"box_size must be three positive lengths (m), got {box_size!r}")
+        self.box_distance = check_range("box_distance", box_distance, 0.0, FLOOR_REACH)
+        clear = HUMANOID_REACH + float(np.hypot(*size[:2])) / 2
+        if self.box_distance[0] < clear:
+            raise ValueError(f"box_distance must keep the box clear of the humanoid: at least {clear:.2f} m "
+                             f"(its reach {HUMANOID_REACH} m from the pelvis + the box's half-diagonal), "
+                             f"got {box_distance!r}")
         if not float(box_density) > 0:
             raise ValueError(f"box_density must be positive (kg/m^3), got {box_density!r}")
         self.box_size, self.box_density = size, float(box_density)

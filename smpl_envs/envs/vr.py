@@ -133,6 +133,7 @@ class VRTrackingVecEnv(HumanoidVecEnv):
 
     task_layout = {"goal": VR_GOAL_LAYOUT}
     evaluation = ThreePointProtocol()
+    policy_kwargs = (*HumanoidVecEnv.policy_kwargs, "action_mode", "residual_scale")  # what an action does
     backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, motions="walk", reward: str = "auto",

@@ -98,6 +98,17 @@ def check_range(name: str, value, low: float = -np.inf, high: float = np.inf) ->
     return lo, hi
 
 
+def check_number(name: str, value, positive: bool = False) -> float:
+    """A finite number >= 0 (> 0 if `positive`), or a ValueError naming the kwarg."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if isinstance(value, bool) or not np.isfinite(v) or v < 0 or (positive and v == 0):
+        raise ValueError(f"{name} must be a {'positive' if positive else 'non-negative'} finite number, got {value!r}")
+    return v
+
+
 def fallen(body: BodyState, height: float = 0.15, head_height: float = 0.3):
     """(N,) a fall: a body origin other than the feet' below `height` m, or the head's below
     `head_height` m. REFERENCE section 5 also asks for ground contact; heights alone are cheaper
@@ -107,6 +118,22 @@ def fallen(body: BodyState, height: float = 0.15, head_height: float = 0.3):
     low = z < height
     low[:, FEET] = False
     return low.any(axis=-1) | (z[:, BODY_NAMES.index("Head")] < head_height)
+
+
+def _render_size(value, model: mujoco.MjModel) -> tuple[int, int]:
+    """render_size as (width, height), each a whole number from 1 up to the model's offscreen
+    buffer; else a ValueError naming the kwarg (0 gave empty frames, a size beyond the buffer an
+    error at the first render)."""
+    limit = (model.vis.global_.offwidth, model.vis.global_.offheight)
+    try:
+        size = tuple(int(v) for v in value)
+        exact = all(float(v) == int(v) and not isinstance(v, bool) for v in value)
+    except (TypeError, ValueError, OverflowError):
+        size, exact = (), False
+    if not exact or len(size) != 2 or not all(1 <= s <= m for s, m in zip(size, limit)):
+        raise ValueError(f"render_size must be (width, height) in pixels, from (1, 1) up to the offscreen "
+                         f"buffer's {limit}, got {value!r}")
+    return size
 
 
 class HumanoidVecEnv(VectorEnv):
@@ -206,7 +233,7 @@ class HumanoidVecEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
 
         self.render_mode = render_mode
-        self.render_size = tuple(render_size)
+        self.render_size = _render_size(render_size, self.model)
         self.render_world = int(render_world)
         self.show_markers = bool(show_markers)
         self._renderer = self._viewer = None

@@ -244,16 +244,12 @@ def _check_train_settings(recipe: dict) -> None:
 
 
 def _check_device(device: str, what: str) -> None:
-    import torch
-
     from .ppo import resolve_device
 
     try:
-        resolved = resolve_device(device)
-    except RuntimeError as e:
-        raise RecipeError(f"{what}={device}: {e}") from None
-    if resolved.type == "cuda" and not torch.cuda.is_available():
-        raise RecipeError(f"{what}={device}: this torch ({torch.__version__}) sees no CUDA device; use cpu or auto")
+        resolve_device(device, name=what)
+    except ValueError as e:
+        raise RecipeError(str(e)) from None
 
 
 def _constructed(build, recipe: dict):

@@ -31,6 +31,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from smpl_envs.backend import MissingExtraError
+
 from .checkpoint import clean_stale_temp_files, newest_readable_checkpoint
 from .plot import EmptyLogError, plot_run, read_progress
 from .recipes import (RecipeError, apply_overrides, available_recipes, check_run_dir_free, find_checkpoint,
@@ -50,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.threads is not None:
             _set_threads(args.threads)
         return args.func(args) or 0
-    except (RecipeError, EmptyLogError, FileNotFoundError) as e:
+    except (RecipeError, EmptyLogError, FileNotFoundError, MissingExtraError) as e:
         print(f"error: {' '.join(str(e).split())}", file=sys.stderr)
         raise SystemExit(2) from None
 
@@ -254,13 +256,14 @@ def _check_device(device: str, what: str) -> None:
 
 def _constructed(build, recipe: dict):
     """build(), with the errors a bad setting raises during construction (an unknown env kwarg,
-    a learning rate of "fast" or -1, a hidden size that is not a list) turned into RecipeError:
+    a learning rate of "fast" or -1, a hidden size that is not a list, a backend whose extra is
+    not installed) turned into RecipeError:
     they are the user's mistakes, to be reported in one line."""
     try:
         return build()
     except RecipeError:
         raise
-    except (ValueError, TypeError, RuntimeError) as e:
+    except (ValueError, TypeError, RuntimeError, MissingExtraError) as e:
         raise RecipeError(f"cannot build {recipe['agent']['class']} on {recipe['env']['id']} with these settings "
                           f"(check env.kwargs, agent.hyperparams and train.device): {e}") from None
 

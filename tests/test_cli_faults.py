@@ -244,6 +244,18 @@ def test_bad_setting_is_one_error_and_overwrite_keeps_the_old_run(setting, run, 
     assert snapshot(run) == before
 
 
+def test_warp_backend_without_the_gpu_extra_is_one_error_naming_the_extra(tmp_path, monkeypatch, capsys):
+    for module in ("warp", "mujoco_warp"):  # as where the extra is not installed, whether or not it is here
+        monkeypatch.setitem(sys.modules, module, None)
+    run = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "demo_walk_ppo", "--set", "env.kwargs.backend=warp", "--run-dir", str(run), *TINY])
+    assert exc.value.code == 2
+    err = one_error_line(capsys)
+    assert "pip install 'smpl-envs[gpu]'" in err and "backend='warp'" in err
+    assert not run.exists()
+
+
 @pytest.mark.parametrize("setting", ["train.device=cdua", "agent.hyperparams.learning_rate=fast"])
 def test_bad_setting_on_resume_records_nothing(setting, run, capsys):
     config = (run / "config.yaml").read_text()

@@ -35,8 +35,8 @@ from smpl_envs.backend import MissingExtraError
 
 from .checkpoint import clean_stale_temp_files, newest_readable_checkpoint
 from .plot import EmptyLogError, plot_run, read_progress
-from .recipes import (RecipeError, apply_overrides, available_recipes, check_run_dir_free, find_checkpoint,
-                      is_unused_run_dir, load_recipe, make_run_dir, read_config, run_dir_of)
+from .recipes import (RecipeError, apply_overrides, available_recipes, check_run_dir_free, check_writable,
+                      find_checkpoint, is_unused_run_dir, load_recipe, make_run_dir, read_config, run_dir_of)
 
 # Settings a checkpoint fixes: its weights only fit these.
 FIXED_ON_RESUME = ("env.id", "agent.class") + tuple(
@@ -143,8 +143,15 @@ def _prepare_new(args) -> tuple[dict, Path, Any, "Evaluator"]:
     overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
     recipe = load_recipe(args.recipe, overrides, args.profile)
     root, name = (args.run_dir.parent, args.run_dir.name) if args.run_dir else (args.runs_root, None)
-    if args.run_dir is not None and not args.overwrite:
-        check_run_dir_free(args.run_dir)  # refuse before the slow part, not after it
+    # Refuse before the slow part, not after it.
+    if args.run_dir is None:
+        check_writable(args.runs_root, "--runs-root", directory=True)
+    else:
+        check_writable(args.run_dir, "--run-dir", directory=True)
+        if not args.overwrite:
+            check_run_dir_free(args.run_dir)
+        elif args.run_dir.is_dir():  # deleted and made again, in its parent
+            check_writable(args.run_dir.parent, "--run-dir", directory=True)
     _check_train_settings(recipe)
     agent = _constructed(lambda: _new_agent(args, recipe), recipe)
     try:
@@ -162,6 +169,7 @@ def _prepare_new(args) -> tuple[dict, Path, Any, "Evaluator"]:
 
 def _prepare_resume(args) -> tuple[dict, Path, Any, "Evaluator"]:
     recipe, run, overrides = _resume_recipe(args)
+    check_writable(run, "--resume", directory=True)
     _check_train_settings(recipe)
     _clean_temp_files(run / "checkpoints")
     checkpoint = _resume_checkpoint(run)
@@ -503,10 +511,13 @@ def cmd_eval(args) -> int:
     options.update(parse_override(o) for o in args.options)
     options.update({k: v for k, v in (("threshold", args.threshold), ("episodes", args.episodes)) if v is not None})
     motions = args.motions[0] if args.motions and len(args.motions) == 1 else args.motions
+    out = args.out or (run / "eval.json" if run is not None and Path(args.target).is_dir() else None)
+    if out is not None:  # the JSON and the table beside it, checked before the evaluation runs
+        for path in (out, out.with_suffix(".txt")):
+            check_writable(path, _output_option(args))
     result = evaluate_agent(agent, motions or ev.get("motions"), args.num_envs or ev.get("num_envs") or 8,
                             progress=not args.no_progress, **options)
     print(f"checkpoint: {ckpt} ({agent.num_timesteps:,} timesteps)")
-    out = args.out or (run / "eval.json" if run is not None and Path(args.target).is_dir() else None)
     if out is None:
         print(result.table())
     else:
@@ -541,6 +552,7 @@ def cmd_record(args) -> int:
         out = run / "videos" / f"{ckpt.stem}.mp4"
     else:
         out = ckpt.with_suffix(".mp4")
+    check_writable(out, _output_option(args))  # before the video renders
     seed = args.seed if args.seed is not None else (config or {}).get("train", {}).get("seed")
     info = record_video(agent, out, steps=args.steps or video.get("steps") or 300,
                         motions=args.motions or video.get("motions"), fps=video.get("fps"), seed=seed,
@@ -569,6 +581,11 @@ def _load_target(args) -> tuple[Any, Path, Path | None, dict | None]:
     except ValueError as e:  # not a checkpoint of ours
         raise RecipeError(str(e)) from None
     return agent, ckpt, run, config
+
+
+def _output_option(args) -> str:
+    """How an error about the output path names it: the option, or the default the user never typed."""
+    return "--out" if args.out is not None else "the default output (choose another with --out)"
 
 
 def _get_dotted(tree: dict, key: str) -> Any:

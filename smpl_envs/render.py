@@ -103,6 +103,9 @@ def record(env, policy, path: str | Path, *, steps: int | None = None, episodes:
         raise ValueError("record needs a bound: pass steps=, episodes= or both")
     if (steps is not None and steps < 1) or (episodes is not None and episodes < 1):
         raise ValueError(f"steps and episodes must be >= 1 (or None), got steps={steps}, episodes={episodes}")
+    path = Path(path)
+    if path.is_dir():  # refused now, not once the rollout has rendered
+        raise ValueError(f"path {path} is a directory; record writes one mp4 file")
     owned = isinstance(env, str)
     if owned:
         env = gym.make(env, render_mode="rgb_array", **make_kwargs)
@@ -115,7 +118,6 @@ def record(env, policy, path: str | Path, *, steps: int | None = None, episodes:
         if env.render_mode != "rgb_array":
             raise ValueError(f"record needs an env made with render_mode='rgb_array', got render_mode={env.render_mode!r}")
         act = _resolve_policy(env, policy)
-        path = Path(path)
         stats = {"frames": 0, "steps": 0, "returns": []}
 
         def frames():

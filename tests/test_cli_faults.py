@@ -4,7 +4,9 @@ Each test reproduces one fault of the issue of that name: a SIGTERM that ended t
 checkpoint, logs of a killed run repeated after `--resume`, a truncated last.pt that stopped a
 resume with intact checkpoints beside it, bad settings that gave tracebacks after `--overwrite`
 had deleted the old run, failed starts that left unusable run directories, and temporary files
-of interrupted saves that stayed forever. Budgets are tiny: 2 worlds x 8 steps per iteration.
+of interrupted saves that stayed forever; then (issue 19) outputs that cannot be written,
+found only after the work, and a disk that fills up during a save. Budgets are tiny: 2 worlds x
+8 steps per iteration.
 """
 import csv
 import os
@@ -18,7 +20,8 @@ from pathlib import Path
 import pytest
 
 import agents
-from agents import PPO
+import smpl_envs
+from agents import PPO, cli
 from agents.cli import INTERRUPTED, TERMINATED, main
 from agents.logger import Logger
 
@@ -316,3 +319,69 @@ def test_stale_temp_files_are_removed_on_resume(run, capsys):
     assert not any(p.exists() for p in stale)
     removed = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("removed ")]
     assert len(removed) == 1 and all(p.name in removed[0] for p in stale)
+
+
+# ---------------------------------------------------------------------------------------- 7. unwritable outputs
+@pytest.fixture
+def no_work(monkeypatch):
+    """Fails the test should the command start its work (build the agent, evaluate, record)
+    before refusing its output path."""
+    def started(*args, **kwargs):
+        raise AssertionError("the work started before the output path was checked")
+
+    for name in ("_new_agent", "evaluate_agent", "record_video"):
+        monkeypatch.setattr(cli, name, started)
+
+
+UNWRITABLE = [
+    (["train", "demo_walk_ppo", "--run-dir", "{file}/run"], "--run-dir"),
+    (["train", "demo_walk_ppo", "--run-dir", "{file}"], "--run-dir"),
+    (["train", "demo_walk_ppo", "--runs-root", "{file}/runs"], "--runs-root"),
+    (["eval", "{run}", "--out", "{file}/eval.json"], "--out"),
+    (["eval", "{run}", "--out", "{dir}"], "--out"),
+    (["record", "{run}", "--out", "{file}/video.mp4"], "--out"),
+    (["record", "{run}", "--out", "{dir}"], "--out"),
+]
+
+
+@pytest.mark.parametrize("argv, option", UNWRITABLE, ids=[" ".join(a[:1] + a[-2:]) for a, _ in UNWRITABLE])
+def test_unwritable_output_is_one_error_before_the_work(argv, option, base_run, tmp_path, no_work, capsys):
+    a_file, a_dir = tmp_path / "a_file", tmp_path / "a_dir"
+    a_file.write_text("not a directory")
+    a_dir.mkdir()
+    before = snapshot(tmp_path)
+    argv = [a.format(file=a_file, dir=a_dir, run=base_run) for a in argv]
+    with pytest.raises(SystemExit) as exc:
+        main(argv + (TINY if argv[0] == "train" else ["--no-progress"]))
+    assert exc.value.code == 2
+    err = one_error_line(capsys)
+    assert option in err and ("is a file" in err or "is a directory" in err), err
+    assert snapshot(tmp_path) == before and not any(a_dir.iterdir())
+
+
+@pytest.mark.parametrize("argv", [["train", "demo_walk_ppo", "--run-dir", "{ro}/run"],
+                                  ["eval", "{run}", "--out", "{ro}/eval.json"],
+                                  ["record", "{run}", "--out", "{ro}/deeper/video.mp4"]])
+def test_read_only_directory_is_one_error_before_the_work(argv, base_run, tmp_path, no_work, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        try:
+            (ro / "probe").touch()
+        except PermissionError:
+            pass
+        else:  # a path under a file, which stops root too, is tested above
+            pytest.skip("this process writes into read-only directories (root with CAP_DAC_OVERRIDE)")
+        with pytest.raises(SystemExit) as exc:
+            main([a.format(ro=ro, run=base_run) for a in argv] + (TINY if argv[0] == "train" else ["--no-progress"]))
+        assert exc.value.code == 2
+        assert f"cannot create files in {ro}" in one_error_line(capsys)
+        assert not any(ro.iterdir())
+    finally:
+        ro.chmod(0o755)
+
+
+def test_record_refuses_a_directory_before_rendering(tmp_path):
+    with pytest.raises(ValueError, match="is a directory"):
+        smpl_envs.record("SMPL/Nonexistent-v0", "zero", tmp_path)  # refused before the env is even made

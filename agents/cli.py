@@ -11,8 +11,10 @@
 A run directory holds config.yaml (the resolved recipe), checkpoints/ (ckpt_<steps>.pt, last.pt,
 best.pt), logs/ (progress.csv, tb/ for TensorBoard), videos/, and after training eval.json,
 eval.txt and curves.png. Mistakes in what the user typed end in one `error: ...` line and exit
-status 2; anything else is a bug and keeps its traceback. Settings are checked by building the
-env and the agent before the run directory is created (or `--overwrite` deletes the old one).
+status 2; a full disk in one `error:` line naming the file and exit status 74 (training stops
+with what it had saved and prints the `--resume` command); anything else is a bug and keeps its
+traceback. Settings and output paths are checked (the env and the agent built) before the run
+directory is created (or `--overwrite` deletes the old one), before an evaluation or a video.
 
 Stopping and resuming: Ctrl-C or SIGTERM (schedulers, `timeout`) saves checkpoints/last.pt and
 prints the `--resume` command (exit status 130 / 143). `--resume` starts from last.pt or, when
@@ -33,7 +35,7 @@ from typing import Any
 
 from smpl_envs.backend import MissingExtraError
 
-from .checkpoint import clean_stale_temp_files, newest_readable_checkpoint
+from .checkpoint import NO_SPACE, DiskFullError, clean_stale_temp_files, load_checkpoint, newest_readable_checkpoint
 from .plot import EmptyLogError, plot_run, read_progress
 from .recipes import (RecipeError, apply_overrides, available_recipes, check_run_dir_free, check_writable,
                       find_checkpoint, is_unused_run_dir, load_recipe, make_run_dir, read_config, run_dir_of)
@@ -44,6 +46,7 @@ FIXED_ON_RESUME = ("env.id", "agent.class") + tuple(
                                        "disc_activation", "amp_num_frames"))
 INTERRUPTED = 130  # the shell's status for a SIGINT
 TERMINATED = 143   # and for a SIGTERM
+DISK_FULL = 74     # sysexits.h's EX_IOERR: a write failed, here for want of space
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -53,8 +56,24 @@ def main(argv: list[str] | None = None) -> int:
             _set_threads(args.threads)
         return args.func(args) or 0
     except (RecipeError, EmptyLogError, FileNotFoundError, MissingExtraError) as e:
-        print(f"error: {' '.join(str(e).split())}", file=sys.stderr)
+        _error(str(e))
         raise SystemExit(2) from None
+    except OSError as e:
+        if e.errno not in NO_SPACE:
+            raise
+        _error(_no_space(e))
+        raise SystemExit(DISK_FULL) from None
+
+
+def _error(message: str) -> None:
+    print(f"error: {' '.join(message.split())}", file=sys.stderr)
+
+
+def _no_space(e: OSError) -> str:
+    # A checkpoint's DiskFullError says which file and what is left; other writes name their file.
+    if isinstance(e, DiskFullError):
+        return str(e)
+    return f"no space left on device{f' writing {e.filename}' if e.filename else ''}"
 
 
 # ---------------------------------------------------------------------------------------- parser
@@ -186,6 +205,26 @@ def _prepare_resume(args) -> tuple[dict, Path, Any, "Evaluator"]:
 
 
 def _train(args, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
+    try:
+        return _train_until_done(args, recipe, run, agent, evaluator)
+    except OSError as e:
+        if e.errno not in NO_SPACE:
+            raise
+        # The run stops here with what it had saved: each save replaces its file only once written.
+        _error(f"{_no_space(e)}; training stopped at {agent.num_timesteps:,} timesteps; {_what_was_saved(run)}")
+        return DISK_FULL
+
+
+def _what_was_saved(run: Path) -> str:
+    path, _ = newest_readable_checkpoint(run / "checkpoints")
+    if path is None:
+        return "no checkpoint was saved"
+    steps = load_checkpoint(path)["num_timesteps"]
+    return f"the run keeps {path} ({steps:,} timesteps): free some space, then continue with: " \
+           f"smpl-envs train --resume {run}"
+
+
+def _train_until_done(args, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
     print(f"run directory: {run}", flush=True)
     evaluator.history_dir = run / "evals"
     callbacks, eval_cb = _callbacks(recipe, run, evaluator, resuming=args.resume is not None)

@@ -1,6 +1,7 @@
 """Checkpoint files: checksums catch damage, old files still load, recovery helpers."""
 from __future__ import annotations
 
+import errno
 import os
 import time
 
@@ -8,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from agents.checkpoint import (FORMAT, CorruptCheckpointError, clean_stale_temp_files, load_checkpoint,
-                               newest_readable_checkpoint, save_checkpoint)
+from agents.checkpoint import (FORMAT, CorruptCheckpointError, DiskFullError, clean_stale_temp_files,
+                               load_checkpoint, newest_readable_checkpoint, save_checkpoint)
 
 
 def _state(seed: int = 0) -> dict:
@@ -133,3 +134,18 @@ def test_clean_stale_temp_files(tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["last.pt", "notes.tmp"]
     assert load_checkpoint(kept)["class"] == "PPO"
     assert clean_stale_temp_files(tmp_path / "missing") == []
+
+
+def test_full_disk_is_one_clear_error_naming_the_file_and_the_old_file_survives(tmp_path, full_disk):
+    path = save_checkpoint(_state(1), tmp_path / "last.pt")
+    before = path.read_bytes()
+    full_disk(after=0)
+    with pytest.raises(DiskFullError) as exc:
+        save_checkpoint(_state(2), path)
+    err = exc.value
+    assert isinstance(err, OSError) and err.errno == errno.ENOSPC and err.filename == str(path)
+    assert str(err).startswith(f"no space left on device to save {path} (1.0 MB)")
+    # One error, not the write's error chained to others raised while torch's writer unwound.
+    assert err.__cause__ is None and err.__suppress_context__
+    assert path.read_bytes() == before and load_checkpoint(path)["num_timesteps"] == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["last.pt"]  # the partial temporary file is gone

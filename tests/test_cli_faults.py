@@ -22,7 +22,7 @@ import pytest
 import agents
 import smpl_envs
 from agents import PPO, cli
-from agents.cli import INTERRUPTED, TERMINATED, main
+from agents.cli import DISK_FULL, INTERRUPTED, TERMINATED, main
 from agents.logger import Logger
 
 STEPS_PER_ITERATION = 16  # env.num_envs x n_steps below
@@ -385,3 +385,36 @@ def test_read_only_directory_is_one_error_before_the_work(argv, base_run, tmp_pa
 def test_record_refuses_a_directory_before_rendering(tmp_path):
     with pytest.raises(ValueError, match="is a directory"):
         smpl_envs.record("SMPL/Nonexistent-v0", "zero", tmp_path)  # refused before the env is even made
+
+
+# ---------------------------------------------------------------------------------------- 8. a full disk
+def test_full_disk_during_a_checkpoint_stops_the_run_with_what_it_saved(tmp_path, full_disk, capsys):
+    run = tmp_path / "run"
+    ckpts = run / "checkpoints"
+    # Saves at 16 steps (ckpt_16, then last.pt) succeed; the disk is full for ckpt_32.
+    free = full_disk(after=2)
+    code = main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=64", "--set", "train.checkpoint_every=16",
+                 "--run-dir", str(run), *TINY])
+    assert code == DISK_FULL
+    err = capsys.readouterr().err
+    assert err.startswith("error: no space left on device") and err.count("\n") == 1, err  # no traceback
+    assert str(ckpts / "ckpt_000000000032.pt") in err and "stopped at 32 timesteps" in err
+    assert f"{ckpts / 'last.pt'} (16 timesteps)" in err and f"smpl-envs train --resume {run}" in err
+    assert agents.load(ckpts / "last.pt").num_timesteps == 16
+    assert sorted(p.name for p in ckpts.iterdir()) == ["ckpt_000000000016.pt", "last.pt"]  # no partial files
+
+    free()  # space freed: the printed command continues the run
+    assert main(["train", "--resume", str(run), *TINY]) == 0
+    assert agents.load(ckpts / "last.pt").num_timesteps == 64
+    assert_increasing(steps_logged(run))
+
+
+def test_full_disk_on_a_run_s_only_save_is_one_error_without_a_resume_command(tmp_path, full_disk, capsys):
+    # The final save of a run without periodic checkpoints: nothing was saved to resume from.
+    fresh = tmp_path / "fresh"
+    full_disk(after=0)
+    assert main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=16", "--run-dir", str(fresh), *TINY]) \
+        == DISK_FULL
+    err = one_error_line(capsys)
+    assert str(fresh / "checkpoints" / "last.pt") in err and "no checkpoint was saved" in err
+    assert "--resume" not in err

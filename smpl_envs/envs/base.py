@@ -145,7 +145,8 @@ class HumanoidVecEnv(VectorEnv):
     by their recent failure rate, PHC's hard-negative mining: `clip_sampling`), cache (the
     MotionLib's disk cache),
     max_episode_steps, autoreset_mode, substeps, num_threads, render_mode, render_size,
-    render_world, show_markers, backend ("cpu": MuJoCo, NumPy arrays; "warp": MuJoCo Warp on
+    render_world (the world `render_frame` and the human viewer show; `render()` gives every
+    world's frame), show_markers, backend ("cpu": MuJoCo, NumPy arrays; "warp": MuJoCo Warp on
     `device`, torch tensors in and out; `smpl_envs.backend`) and device.
 
     A task lists the backends its code runs on in `backends`.
@@ -458,20 +459,30 @@ class HumanoidVecEnv(VectorEnv):
 
     # ------------------------------------------------------------------ rendering
     def render(self):
-        """An RGB frame of world `render_world` (rgb_array) or a live viewer window (human)."""
+        """Gymnasium's vector contract: a tuple of one RGB frame per world (rgb_array; that is
+        num_envs renders, `render_frame` renders one), or a live viewer window of world
+        `render_world` (human; returns None)."""
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make")
             return None
-        world = self.render_world
-        data = self._render_data(world)
-        markers = self._markers(world) if self.show_markers else []
         if self.render_mode == "human":
-            return self._render_human(data)
+            return self._render_human(self._render_data(self.render_world))
+        return tuple(self.render_frame(world) for world in range(self.num_envs))
+
+    def render_frame(self, world: int | None = None):
+        """An RGB frame (height, width, 3) of one world: `world`, by default `render_world`, with
+        its markers unless show_markers=False."""
+        if self.render_mode is None:
+            gym.logger.warn("render_frame() called without a render_mode; pass render_mode='rgb_array'")
+            return None
+        world = self.render_world if world is None else world
+        if not 0 <= world < self.num_envs:
+            raise ValueError(f"world must be in [0, {self.num_envs}), got {world!r}")
         if self._renderer is None:
             from ..render import FrameRenderer
 
             self._renderer = FrameRenderer(self.model, *self.render_size)
-        return self._renderer.render(data, markers)
+        return self._renderer.render(self._render_data(world), self._markers(world) if self.show_markers else [])
 
     def _render_data(self, world: int) -> mujoco.MjData:
         if self.backend.name == "cpu":
@@ -536,7 +547,7 @@ class SingleEnv(gym.Env):
         return obs[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), _unbatch(info)
 
     def render(self):
-        return self.vec.render()
+        return self.vec.render_frame() if self.render_mode == "rgb_array" else self.vec.render()
 
     def close(self):
         self.vec.close()

@@ -55,6 +55,9 @@ RENDER_MODES = ["rgb_array"] + (["human"] if os.environ.get("DISPLAY") or os.env
 PROPRIO_DIM = layout_size(SELF_OBS_LAYOUT)  # every task's observation starts with the self observation
 STARTS = ("random", "beginning")
 FEET = np.array([i for i, n in enumerate(BODY_NAMES) if n.endswith(("Ankle", "Toe"))])
+# Attributes of the batched core that the one-world env does not pass on (SingleEnv).
+VECTOR_ONLY = frozenset({"num_envs", "single_observation_space", "single_action_space", "autoreset_mode",
+                         "render_world"})
 
 
 def load_motions(motions: str | os.PathLike | list | MotionLib, progress: bool = False,
@@ -557,9 +560,10 @@ class SingleEnv(gym.Env):
 
     def __getattr__(self, name: str):
         # The task's public attributes (observation_structure, motion_lib, model, sim ...),
-        # reachable as env.unwrapped.<name>.
-        if name.startswith("_") or name == "vec":
-            raise AttributeError(name)
+        # reachable as env.unwrapped.<name>; the vector API is not, or other libraries would take
+        # this env for a batched one (torchrl reads num_envs). env.unwrapped.vec has it all.
+        if name.startswith("_") or name == "vec" or name in VECTOR_ONLY:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
         return getattr(self.vec, name)
 
 

@@ -212,5 +212,5 @@ def clean_stale_temp_files(directory: str | os.PathLike, min_age_s: float = 0.0)
     return removed
 
 
-__all__ = ["FORMAT", "CONTAINER_FORMAT", "CorruptCheckpointError", "DiskFullError", "save_checkpoint", "load_checkpoint",
-           "newest_readable_checkpoint", "clean_stale_temp_files", "versions"]
+__all__ = ["FORMAT", "CONTAINER_FORMAT", "NO_SPACE", "CorruptCheckpointError", "DiskFullError", "save_checkpoint",
+           "load_checkpoint", "newest_readable_checkpoint", "clean_stale_temp_files", "versions"]

@@ -304,8 +304,8 @@ def _check_device(device: str, what: str) -> None:
 def _constructed(build, recipe: dict):
     """build(), with the errors a bad setting raises during construction (an unknown env kwarg,
     a learning rate of "fast" or -1, a hidden size that is not a list, a backend whose extra is
-    not installed) turned into RecipeError:
-    they are the user's mistakes, to be reported in one line."""
+    not installed) turned into RecipeError: they are the user's mistakes, to be reported in one
+    line."""
     try:
         return build()
     except RecipeError:

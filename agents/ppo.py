@@ -134,9 +134,9 @@ def flush_subnormals_(optimizer: torch.optim.Optimizer) -> None:
 
 
 def resolve_device(device: str | torch.device, name: str = "device") -> torch.device:
-    """"auto" (CUDA where torch sees a GPU, else the CPU) or the device named, checked here: a
-    CUDA device on a torch that cannot use one is a ValueError saying what to install, not an
-    assertion inside torch once the env is built. `name`: the setting, as the message calls it."""
+    """The torch device `device` names ("auto": CUDA where torch sees a GPU, else the CPU), checked
+    here: a CUDA device on a torch that cannot use one is a ValueError saying what to install, not
+    an assertion inside torch once the env is built. `name`: the setting, as the message calls it."""
     if str(device) == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     try:

@@ -13,12 +13,16 @@ text-decoding error instead of a checksum failure.
 Files written before the checksum existed (the state dict saved directly) still load, unchecked.
 Both layouts load with `torch.load(..., weights_only=True)`.
 
+A full disk (or quota) during a save is a `DiskFullError` that names the file; the file it would
+have replaced is untouched and the partial temporary file removed.
+
 Helpers for resuming after a crash: `newest_readable_checkpoint` finds the newest file of a
 checkpoint directory that loads and passes its checksum; `clean_stale_temp_files` removes the
 temporary files interrupted saves leave behind.
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import io
 import os
@@ -36,8 +40,23 @@ CONTAINER_FORMAT = "smpl-envs-agent-sha256/1"  # the checksummed wrapper around 
 TEMP_GLOB = ".*.pt.*.tmp"
 
 
+NO_SPACE = (errno.ENOSPC, errno.EDQUOT)  # what a full disk or an exhausted quota raises
+
+
 class CorruptCheckpointError(ValueError):
     """A checkpoint file that cannot be read back intact: truncated, damaged, or failing its checksum."""
+
+
+class DiskFullError(OSError):
+    """No space (or quota) left to save checkpoint `filename`; the file it would have replaced
+    is as it was."""
+
+    def __init__(self, code: int, path: Path, size: int):
+        super().__init__(code, f"no space left on device to save {path} ({size / 1e6:.1f} MB); "
+                               f"the {path.name} already there, if any, is unchanged", str(path))
+
+    def __str__(self) -> str:
+        return self.strerror
 
 
 def versions() -> dict[str, str]:
@@ -69,18 +88,28 @@ def save_checkpoint(payload: dict[str, Any], path: str | os.PathLike) -> Path:
     data = buffer.getvalue()
     container = {"format": CONTAINER_FORMAT, "sha256": hashlib.sha256(data).hexdigest(),
                  "payload": torch.frombuffer(bytearray(data), dtype=torch.uint8)}
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    # The file's bytes are made in memory too, so that a failing write (a full disk) surfaces as
+    # the OSError itself rather than inside torch's zip writer, as chained errors and an assertion.
+    buffer = io.BytesIO()
+    torch.save(container, buffer)
+    del data, container
+    blob = buffer.getbuffer()
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         # mkstemp makes the file private (0600); give it the mode a plain open() would, so
         # checkpoints stay readable where the user's umask shares files (a cluster's group).
         os.chmod(tmp, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as f:
-            torch.save(container, f)
+            f.write(blob)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+    except BaseException as e:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        if isinstance(e, OSError) and e.errno in NO_SPACE:
+            raise DiskFullError(e.errno, path, len(blob)) from None
         raise
     _fsync_dir(path.parent)
     return path
@@ -183,5 +212,5 @@ def clean_stale_temp_files(directory: str | os.PathLike, min_age_s: float = 0.0)
     return removed
 
 
-__all__ = ["FORMAT", "CONTAINER_FORMAT", "CorruptCheckpointError", "save_checkpoint", "load_checkpoint",
-           "newest_readable_checkpoint", "clean_stale_temp_files", "versions"]
+__all__ = ["FORMAT", "CONTAINER_FORMAT", "NO_SPACE", "CorruptCheckpointError", "DiskFullError", "save_checkpoint",
+           "load_checkpoint", "newest_readable_checkpoint", "clean_stale_temp_files", "versions"]

@@ -11,8 +11,10 @@
 A run directory holds config.yaml (the resolved recipe), checkpoints/ (ckpt_<steps>.pt, last.pt,
 best.pt), logs/ (progress.csv, tb/ for TensorBoard), videos/, and after training eval.json,
 eval.txt and curves.png. Mistakes in what the user typed end in one `error: ...` line and exit
-status 2; anything else is a bug and keeps its traceback. Settings are checked by building the
-env and the agent before the run directory is created (or `--overwrite` deletes the old one).
+status 2; a full disk in one `error:` line naming the file and exit status 74 (training stops
+with what it had saved and prints the `--resume` command); anything else is a bug and keeps its
+traceback. Settings and output paths are checked (the env and the agent built) before the run
+directory is created (or `--overwrite` deletes the old one), before an evaluation or a video.
 
 One training per run directory: a live run holds RUN/.lock (`recipes.RunLock`: an flock, with its
 process id), so a second start into it, `--overwrite` of it or `--resume` of it is refused,
@@ -35,11 +37,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .checkpoint import clean_stale_temp_files, newest_readable_checkpoint
+from smpl_envs.backend import MissingExtraError
+
+from .checkpoint import NO_SPACE, DiskFullError, clean_stale_temp_files, load_checkpoint, newest_readable_checkpoint
 from .plot import EmptyLogError, plot_run, read_progress
 from .recipes import (LOCK_NAME, RecipeError, RunLock, apply_overrides, available_recipes, check_run_dir_free,
-                      find_checkpoint, in_use_message, is_unused_run_dir, live_run_pid, load_recipe, make_run_dir,
-                      read_config, run_dir_of)
+                      check_writable, find_checkpoint, in_use_message, is_unused_run_dir, live_run_pid,
+                      load_recipe, make_run_dir, read_config, run_dir_of)
 
 # Settings a checkpoint fixes: its weights only fit these.
 FIXED_ON_RESUME = ("env.id", "agent.class") + tuple(
@@ -47,6 +51,7 @@ FIXED_ON_RESUME = ("env.id", "agent.class") + tuple(
                                        "disc_activation", "amp_num_frames"))
 INTERRUPTED = 130  # the shell's status for a SIGINT
 TERMINATED = 143   # and for a SIGTERM
+DISK_FULL = 74     # sysexits.h's EX_IOERR: a write failed, here for want of space
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,9 +60,25 @@ def main(argv: list[str] | None = None) -> int:
         if args.threads is not None:
             _set_threads(args.threads)
         return args.func(args) or 0
-    except (RecipeError, EmptyLogError, FileNotFoundError) as e:
-        print(f"error: {' '.join(str(e).split())}", file=sys.stderr)
+    except (RecipeError, EmptyLogError, FileNotFoundError, MissingExtraError) as e:
+        _error(str(e))
         raise SystemExit(2) from None
+    except OSError as e:
+        if e.errno not in NO_SPACE:
+            raise
+        _error(_no_space(e))
+        raise SystemExit(DISK_FULL) from None
+
+
+def _error(message: str) -> None:
+    print(f"error: {' '.join(message.split())}", file=sys.stderr)
+
+
+def _no_space(e: OSError) -> str:
+    # A checkpoint's DiskFullError says which file and what is left; other writes name their file.
+    if isinstance(e, DiskFullError):
+        return str(e)
+    return f"no space left on device{f' writing {e.filename}' if e.filename else ''}"
 
 
 # ---------------------------------------------------------------------------------------- parser
@@ -147,11 +168,17 @@ def _prepare_new(args) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
     overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
     recipe = load_recipe(args.recipe, overrides, args.profile)
     root, name = (args.run_dir.parent, args.run_dir.name) if args.run_dir else (args.runs_root, None)
-    if args.run_dir is not None:  # refuse before the slow part, not after it
-        if args.overwrite:
-            _check_overwrite(args.run_dir)
-        else:
+    # Refuse before the slow part, not after it.
+    if args.run_dir is None:
+        check_writable(args.runs_root, "--runs-root", directory=True)
+    else:
+        check_writable(args.run_dir, "--run-dir", directory=True)
+        if not args.overwrite:
             check_run_dir_free(args.run_dir)
+        else:
+            _check_overwrite(args.run_dir)
+            if args.run_dir.is_dir():  # deleted and made again, in its parent
+                check_writable(args.run_dir.parent, "--run-dir", directory=True)
     _check_train_settings(recipe)
     agent = _constructed(lambda: _new_agent(args, recipe), recipe)
     lock = None
@@ -176,6 +203,7 @@ def _prepare_new(args) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
 
 def _prepare_resume(args) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
     recipe, run, overrides = _resume_recipe(args)
+    check_writable(run, "--resume", directory=True)
     _check_train_settings(recipe)
     # Before the temporary files are cleaned: a live run's would be its saves in progress.
     lock = RunLock(run).acquire()
@@ -216,6 +244,26 @@ def _clear_run_dir(run: Path) -> None:
 
 
 def _train(args, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
+    try:
+        return _train_until_done(args, recipe, run, agent, evaluator)
+    except OSError as e:
+        if e.errno not in NO_SPACE:
+            raise
+        # The run stops here with what it had saved: each save replaces its file only once written.
+        _error(f"{_no_space(e)}; training stopped at {agent.num_timesteps:,} timesteps; {_what_was_saved(run)}")
+        return DISK_FULL
+
+
+def _what_was_saved(run: Path) -> str:
+    path, _ = newest_readable_checkpoint(run / "checkpoints")
+    if path is None:
+        return "no checkpoint was saved"
+    steps = load_checkpoint(path)["num_timesteps"]
+    return f"the run keeps {path} ({steps:,} timesteps): free some space, then continue with: " \
+           f"smpl-envs train --resume {run}"
+
+
+def _train_until_done(args, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
     print(f"run directory: {run}", flush=True)
     evaluator.history_dir = run / "evals"
     callbacks, eval_cb = _callbacks(recipe, run, evaluator, resuming=args.resume is not None)
@@ -284,27 +332,24 @@ def _check_train_settings(recipe: dict) -> None:
 
 
 def _check_device(device: str, what: str) -> None:
-    import torch
-
     from .ppo import resolve_device
 
     try:
-        resolved = resolve_device(device)
-    except RuntimeError as e:
-        raise RecipeError(f"{what}={device}: {e}") from None
-    if resolved.type == "cuda" and not torch.cuda.is_available():
-        raise RecipeError(f"{what}={device}: this torch ({torch.__version__}) sees no CUDA device; use cpu or auto")
+        resolve_device(device, name=what)
+    except ValueError as e:
+        raise RecipeError(str(e)) from None
 
 
 def _constructed(build, recipe: dict):
     """build(), with the errors a bad setting raises during construction (an unknown env kwarg,
-    a learning rate of "fast" or -1, a hidden size that is not a list) turned into RecipeError:
-    they are the user's mistakes, to be reported in one line."""
+    a learning rate of "fast" or -1, a hidden size that is not a list, a backend whose extra is
+    not installed) turned into RecipeError: they are the user's mistakes, to be reported in one
+    line."""
     try:
         return build()
     except RecipeError:
         raise
-    except (ValueError, TypeError, RuntimeError) as e:
+    except (ValueError, TypeError, RuntimeError, MissingExtraError) as e:
         raise RecipeError(f"cannot build {recipe['agent']['class']} on {recipe['env']['id']} with these settings "
                           f"(check env.kwargs, agent.hyperparams and train.device): {e}") from None
 
@@ -551,10 +596,13 @@ def cmd_eval(args) -> int:
     options.update(parse_override(o) for o in args.options)
     options.update({k: v for k, v in (("threshold", args.threshold), ("episodes", args.episodes)) if v is not None})
     motions = args.motions[0] if args.motions and len(args.motions) == 1 else args.motions
+    out = args.out or (run / "eval.json" if run is not None and Path(args.target).is_dir() else None)
+    if out is not None:  # the JSON and the table beside it, checked before the evaluation runs
+        for path in (out, out.with_suffix(".txt")):
+            check_writable(path, _output_option(args))
     result = evaluate_agent(agent, motions or ev.get("motions"), args.num_envs or ev.get("num_envs") or 8,
                             progress=not args.no_progress, **options)
     print(f"checkpoint: {ckpt} ({agent.num_timesteps:,} timesteps)")
-    out = args.out or (run / "eval.json" if run is not None and Path(args.target).is_dir() else None)
     if out is None:
         print(result.table())
     else:
@@ -587,6 +635,7 @@ def cmd_record(args) -> int:
         out = run / "videos" / f"{ckpt.stem}.mp4"
     else:
         out = ckpt.with_suffix(".mp4")
+    check_writable(out, _output_option(args))  # before the video renders
     seed = args.seed if args.seed is not None else (config or {}).get("train", {}).get("seed")
     info = record_video(agent, out, steps=args.steps or video.get("steps") or 300,
                         motions=args.motions or video.get("motions"), fps=video.get("fps"), seed=seed,
@@ -615,6 +664,11 @@ def _load_target(args) -> tuple[Any, Path, Path | None, dict | None]:
     except ValueError as e:  # not a checkpoint of ours
         raise RecipeError(str(e)) from None
     return agent, ckpt, run, config
+
+
+def _output_option(args) -> str:
+    """How an error about the output path names it: the option, or the default the user never typed."""
+    return "--out" if args.out is not None else "the default output (choose another with --out)"
 
 
 def _get_dotted(tree: dict, key: str) -> Any:

@@ -133,10 +133,26 @@ def flush_subnormals_(optimizer: torch.optim.Optimizer) -> None:
                     t.masked_fill_(t.abs() < FLUSH_BELOW, 0.0)
 
 
-def resolve_device(device: str | torch.device) -> torch.device:
+def resolve_device(device: str | torch.device, name: str = "device") -> torch.device:
+    """The torch device `device` names ("auto": CUDA where torch sees a GPU, else the CPU), checked
+    here: a CUDA device on a torch that cannot use one is a ValueError saying what to install, not
+    an assertion inside torch once the env is built. `name`: the setting, as the message calls it."""
     if str(device) == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
+    try:
+        resolved = torch.device(device)
+    except (RuntimeError, TypeError) as e:
+        reason = str(e).splitlines()[0]
+        raise ValueError(f"{name}={device!r} is not a torch device (auto, cpu, cuda, cuda:1, ...): {reason}") from None
+    if resolved.type != "cuda" or (torch.cuda.is_available() and (resolved.index or 0) < torch.cuda.device_count()):
+        return resolved
+    if torch.version.cuda is None:
+        release = torch.__version__.split("+")[0]
+        raise ValueError(f"{name}={device!r}: this torch ({torch.__version__}) is a CPU-only build. Install a CUDA "
+                         f"build (on Linux PyPI's wheels are: pip install --force-reinstall torch=={release}; other "
+                         "platforms and CUDA versions: https://pytorch.org/get-started/locally/), or use cpu or auto")
+    raise ValueError(f"{name}={device!r}: this torch (CUDA {torch.version.cuda}) sees {torch.cuda.device_count()} CUDA "
+                     "device(s) (no NVIDIA driver, or CUDA_VISIBLE_DEVICES hides them); use cpu or auto")
 
 
 class PPO:

@@ -20,6 +20,7 @@ import copy
 import inspect
 import os
 import re
+import tempfile
 from datetime import datetime
 from pathlib import Path
 from typing import Any, Iterable
@@ -390,6 +391,31 @@ def check_run_dir_free(run: str | os.PathLike) -> None:
                           "never trained; delete it or pass --overwrite")
     raise RecipeError(f"run directory {run} already exists and is not empty; choose another "
                       f"--run-dir or continue it with --resume {run}")
+
+
+def check_writable(path: str | os.PathLike, what: str, directory: bool = False) -> None:
+    """Refuse an output path the command could not write, before the work that fills it: a file
+    path (`directory=False`) that is a directory, a directory path that is a file, or a place
+    where no file can be created (the path's nearest existing directory is tried with a temporary
+    file, which catches permissions, read-only filesystems and a file where a directory should
+    be). `what` names the option in the message (--out, --run-dir)."""
+    path = Path(path)
+    if path.is_dir() and not directory:
+        raise RecipeError(f"{what} {path} is a directory; give a file path inside it")
+    if path.exists() and not path.is_dir() and directory:
+        raise RecipeError(f"{what} {path} is a file, not a directory")
+    if path.is_file() and not os.access(path, os.W_OK):
+        raise RecipeError(f"{what} {path}: the file exists and is read-only")
+    place = path if path.is_dir() else path.parent
+    while not place.exists() and place != place.parent:  # try where it would be created
+        place = place.parent
+    if not place.is_dir():
+        raise RecipeError(f"{what} {path}: {place} is a file, not a directory")
+    try:
+        with tempfile.TemporaryFile(dir=place):
+            pass
+    except OSError as e:
+        raise RecipeError(f"{what} {path}: cannot create files in {place} ({e.strerror or e})") from None
 
 
 def is_unused_run_dir(run: str | os.PathLike) -> bool:

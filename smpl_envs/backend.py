@@ -33,6 +33,11 @@ import numpy as np
 BACKENDS = ("cpu", "warp")
 
 
+class MissingExtraError(ImportError):
+    """A setting needs an optional dependency that is not installed; the message names the extra
+    that installs it."""
+
+
 class NumpyBackend:
     """Arrays on the host: NumPy, float64, the env's `np_random`."""
 
@@ -168,8 +173,8 @@ def make_backend(backend: str, device: Any = None):
         try:
             import warp  # noqa: F401
             import mujoco_warp  # noqa: F401
-        except ImportError as e:
-            raise ImportError(f"backend='warp' needs MuJoCo Warp: pip install 'smpl-envs[gpu]' ({e})") from e
+        except ImportError as e:  # the reason is in the message; its traceback would only repeat it
+            raise MissingExtraError(f"backend='warp' needs MuJoCo Warp: pip install 'smpl-envs[gpu]' ({e})") from None
         import warp as wp
 
         wp.init()

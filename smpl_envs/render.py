@@ -118,6 +118,9 @@ def record(env, policy, path: str | Path, *, steps: int | None = None, episodes:
     if trained is None and override_settings:
         raise ValueError("override_settings is for a policy that records its training settings (an agent); "
                          "this policy records none")
+    path = Path(path)
+    if path.is_dir():  # refused now, not once the rollout has rendered
+        raise ValueError(f"path {path} is a directory; record writes one mp4 file")
     owned = isinstance(env, str)
     if owned:
         if trained is not None:
@@ -134,7 +137,6 @@ def record(env, policy, path: str | Path, *, steps: int | None = None, episodes:
         if env.render_mode != "rgb_array":
             raise ValueError(f"record needs an env made with render_mode='rgb_array', got render_mode={env.render_mode!r}")
         act = _resolve_policy(env, policy)
-        path = Path(path)
         stats = {"frames": 0, "steps": 0, "returns": []}
 
         def frames():

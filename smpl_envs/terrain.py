@@ -275,23 +275,28 @@ def _resample(coarse: np.ndarray, pts: np.ndarray, spacing: float) -> np.ndarray
     return lookup(coarse, pts * (SPACING / spacing), 0.0, 0.0)
 
 
+def _grid_length(name: str, value, minimum: float) -> float:
+    """`value` as metres that are a whole number of grid steps, or a ValueError naming the kwarg.
+    Finiteness comes first: NaN or inf would otherwise fail inside int() naming nothing."""
+    try:
+        metres = float(value)
+    except (TypeError, ValueError):
+        metres = np.nan
+    if not (np.isfinite(metres) and metres >= minimum
+            and abs(round(metres / SPACING) * SPACING - metres) < 1e-9):
+        raise ValueError(f"{name} must be a finite multiple of {SPACING} m, at least {minimum} m, got {value!r}")
+    return metres
+
+
 def make_terrain(terrain="mixed", difficulty="levels", size=(4, 4), tile_size: float = 20.0,
                  border: float = 10.0, seed: int = 0) -> Terrain:
     """The terrain of the module docstring, centred on the world origin. Same arguments -> same
     heights. ValueError names a bad kwarg (as the env spells it)."""
     shares = parse_shares(terrain)
     rows, cols = check_size(size)
-    try:
-        tile_size, border = float(tile_size), float(border)
-    except (TypeError, ValueError):
-        raise ValueError(f"tile_size and terrain_border must be numbers, got {tile_size!r}, {border!r}") from None
-    n = int(round(tile_size / SPACING))
-    if not (np.isfinite(tile_size) and abs(n * SPACING - tile_size) < 1e-9 and tile_size >= 2 * POLE_CLEARANCE + 1.0):
-        raise ValueError(f"tile_size must be a multiple of {SPACING} m and at least {2 * POLE_CLEARANCE + 1.0} m, "
-                         f"got {tile_size!r}")
-    b = int(round(border / SPACING))
-    if not (np.isfinite(border) and border >= 0 and abs(b * SPACING - border) < 1e-9):
-        raise ValueError(f"terrain_border must be a non-negative multiple of {SPACING} m, got {border!r}")
+    tile_size = _grid_length("tile_size", tile_size, 2 * POLE_CLEARANCE + 1.0)
+    border = _grid_length("terrain_border", border, 0.0)
+    n, b = int(round(tile_size / SPACING)), int(round(border / SPACING))
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"terrain_seed must be an integer >= 0, got {seed!r}")
     rng = np.random.default_rng(int(seed))

@@ -88,8 +88,8 @@ class _SB3VecEnvMethods:
     returns the batched env's attribute once per requested index (an (N, ...) array stays
     whole); `env_method` calls the method once and repeats its result; `set_attr` sets the
     attribute for all worlds and refuses a subset; `env_is_wrapped` is False for every world
-    (the worlds are not gymnasium.Env objects); `render()` gives the batched env's frame (world
-    0 unless its `render_world` says otherwise) when made with render_mode="rgb_array".
+    (the worlds are not gymnasium.Env objects). When made with render_mode="rgb_array",
+    `get_images()` gives one frame per world and SB3's `render()` tiles them into one image.
     Episode returns and lengths for SB3's logs come from wrapping this in `VecMonitor`.
     """
 
@@ -194,10 +194,9 @@ class _SB3VecEnvMethods:
 
     # ------------------------------------------------------------------ rendering and closing
     def get_images(self) -> list[np.ndarray | None]:
-        # One frame: the batched env renders one world, and SB3's render tiles the list it gets.
         if self.render_mode != "rgb_array":
-            return [None]
-        return [self.vector_env.render()]
+            return [None] * self.num_envs
+        return list(self.vector_env.render())
 
     def close(self) -> None:
         if not self._closed:

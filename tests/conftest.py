@@ -1,4 +1,7 @@
 
+import errno
+import os
+
 import numpy as np
 import pytest
 
@@ -22,6 +25,45 @@ def _restore_torch_threads():
 def _private_cache(tmp_path, monkeypatch):
     """Every test gets its own MotionLib cache, so no test sees another's (or the user's)."""
     monkeypatch.setenv("SMPL_ENVS_CACHE", str(tmp_path / "cache"))
+
+
+class _FillingDisk:
+    """A file on a disk with no space left: a write stores part of its bytes, then fails."""
+
+    def __init__(self, f):
+        self._f = f
+
+    def write(self, data) -> int:
+        self._f.write(bytes(memoryview(data)[: len(data) // 2]))
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def __getattr__(self, name):
+        return getattr(self._f, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._f.close()
+
+
+@pytest.fixture
+def full_disk(monkeypatch):
+    """`full_disk(after=n)`: the disk fills up after n more files opened with `os.fdopen` (how
+    checkpoint saves open their temporary file); every write to a later one fails with ENOSPC.
+    Returns a function that frees the space again."""
+    real, opened = os.fdopen, []
+
+    def fill(after: int = 0):
+        def fdopen(fd, *args, **kwargs):
+            f = real(fd, *args, **kwargs)
+            opened.append(fd)
+            return f if len(opened) <= after else _FillingDisk(f)
+
+        monkeypatch.setattr(os, "fdopen", fdopen)
+        return lambda: monkeypatch.setattr(os, "fdopen", real)
+
+    return fill
 
 
 def sway_motion(fps: float = 120.0, seconds: float = 3.0, name: str = "sway") -> RawMotion:

@@ -181,6 +181,26 @@ def test_bad_input_gives_clear_errors():
         PPO(None, **TINY).learn(10)
 
 
+def test_cuda_device_without_cuda_is_a_value_error_that_says_what_to_install(tmp_path, monkeypatch):
+    # As on a CPU-only torch build, whichever build runs the test.
+    monkeypatch.setattr(torch.version, "cuda", None)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    for make in (lambda: PPO("Pendulum-v1", device="cuda", **TINY),
+                 lambda: AMP("SMPL/Speed-v0", env_kwargs={"motions": "walk"}, device="cuda:0", **TINY)):
+        with pytest.raises(ValueError, match=r"device='cuda(:0)?'.*CPU-only build.*Install a CUDA build.*pip install"):
+            make()
+    path = PPO("Pendulum-v1", **TINY).save(tmp_path / "p.pt")
+    with pytest.raises(ValueError, match="CPU-only build"):
+        PPO.load(path, device="cuda")
+    # A CUDA build without a visible GPU: a driver or CUDA_VISIBLE_DEVICES matter, not the build.
+    monkeypatch.setattr(torch.version, "cuda", "12.8")
+    with pytest.raises(ValueError, match="sees 0 CUDA device.*CUDA_VISIBLE_DEVICES"):
+        PPO("Pendulum-v1", device="cuda", **TINY)
+    with pytest.raises(ValueError, match="device='cdua' is not a torch device"):
+        PPO("Pendulum-v1", device="cdua", **TINY)
+    assert PPO("Pendulum-v1", device="auto", **TINY).device == torch.device("cpu")
+
+
 def test_logger_writes_csv_with_late_columns_and_tensorboard(tmp_path):
     log = Logger(tmp_path, stdout=False)
     log.record("rollout/a", 1.0)

@@ -2,6 +2,7 @@
 policy runs only in the env it was trained in (its task and recorded settings)."""
 from __future__ import annotations
 
+import errno
 import os
 import time
 
@@ -10,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from agents.checkpoint import (FORMAT, CorruptCheckpointError, clean_stale_temp_files, load_checkpoint,
-                               newest_readable_checkpoint, save_checkpoint)
+from agents.checkpoint import (FORMAT, CorruptCheckpointError, DiskFullError, clean_stale_temp_files,
+                               load_checkpoint, newest_readable_checkpoint, save_checkpoint)
 
 
 def _state(seed: int = 0) -> dict:
@@ -293,3 +294,18 @@ def test_record_runs_a_policy_in_its_training_mode(residual_path, tmp_path):
     with pytest.raises(ValueError, match="records none"):
         smpl_envs.record(ID, "zero", tmp_path / "f.mp4", steps=1, override_settings={"action_mode"})
     assert not any((tmp_path / f"{x}.mp4").exists() for x in "def")
+
+
+def test_full_disk_is_one_clear_error_naming_the_file_and_the_old_file_survives(tmp_path, full_disk):
+    path = save_checkpoint(_state(1), tmp_path / "last.pt")
+    before = path.read_bytes()
+    full_disk(after=0)
+    with pytest.raises(DiskFullError) as exc:
+        save_checkpoint(_state(2), path)
+    err = exc.value
+    assert isinstance(err, OSError) and err.errno == errno.ENOSPC and err.filename == str(path)
+    assert str(err).startswith(f"no space left on device to save {path} (1.0 MB)")
+    # One error, not the write's error chained to others raised while torch's writer unwound.
+    assert err.__cause__ is None and err.__suppress_context__
+    assert path.read_bytes() == before and load_checkpoint(path)["num_timesteps"] == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["last.pt"]  # the partial temporary file is gone

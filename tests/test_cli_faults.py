@@ -5,7 +5,8 @@ checkpoint, logs of a killed run repeated after `--resume`, a truncated last.pt 
 resume with intact checkpoints beside it, bad settings that gave tracebacks after `--overwrite`
 had deleted the old run, failed starts that left unusable run directories, a second training
 started into (or `--overwrite` of) a live run, and temporary files of interrupted saves that
-stayed forever. Budgets are tiny: 2 worlds x 8 steps per iteration.
+stayed forever; then outputs that cannot be written, found only after the work, and a disk that
+fills up during a save. Budgets are tiny: 2 worlds x 8 steps per iteration.
 """
 import csv
 import multiprocessing
@@ -20,8 +21,9 @@ from pathlib import Path
 import pytest
 
 import agents
-from agents import PPO
-from agents.cli import INTERRUPTED, TERMINATED, main
+import smpl_envs
+from agents import PPO, cli
+from agents.cli import DISK_FULL, INTERRUPTED, TERMINATED, main
 from agents.logger import Logger
 from agents.recipes import RUN_SUBDIRS, RunLock, live_run_pid, load_recipe, write_config
 
@@ -252,6 +254,18 @@ def test_bad_setting_is_one_error_and_overwrite_keeps_the_old_run(setting, run, 
     assert snapshot(run) == before
 
 
+def test_warp_backend_without_the_gpu_extra_is_one_error_naming_the_extra(tmp_path, monkeypatch, capsys):
+    for module in ("warp", "mujoco_warp"):  # as where the extra is not installed, whether or not it is here
+        monkeypatch.setitem(sys.modules, module, None)
+    run = tmp_path / "run"
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "demo_walk_ppo", "--set", "env.kwargs.backend=warp", "--run-dir", str(run), *TINY])
+    assert exc.value.code == 2
+    err = one_error_line(capsys)
+    assert "pip install 'smpl-envs[gpu]'" in err and "backend='warp'" in err
+    assert not run.exists()
+
+
 @pytest.mark.parametrize("setting", ["train.device=cdua", "agent.hyperparams.learning_rate=fast"])
 def test_bad_setting_on_resume_records_nothing(setting, run, capsys):
     config = (run / "config.yaml").read_text()
@@ -369,3 +383,102 @@ def test_stale_temp_files_are_removed_on_resume(run, capsys):
     assert not any(p.exists() for p in stale)
     removed = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("removed ")]
     assert len(removed) == 1 and all(p.name in removed[0] for p in stale)
+
+
+# ---------------------------------------------------------------------------------------- 7. unwritable outputs
+@pytest.fixture
+def no_work(monkeypatch):
+    """Fails the test should the command start its work (build the agent, evaluate, record)
+    before refusing its output path."""
+    def started(*args, **kwargs):
+        raise AssertionError("the work started before the output path was checked")
+
+    for name in ("_new_agent", "evaluate_agent", "record_video"):
+        monkeypatch.setattr(cli, name, started)
+
+
+UNWRITABLE = [
+    (["train", "demo_walk_ppo", "--run-dir", "{file}/run"], "--run-dir"),
+    (["train", "demo_walk_ppo", "--run-dir", "{file}"], "--run-dir"),
+    (["train", "demo_walk_ppo", "--runs-root", "{file}/runs"], "--runs-root"),
+    (["eval", "{run}", "--out", "{file}/eval.json"], "--out"),
+    (["eval", "{run}", "--out", "{dir}"], "--out"),
+    (["record", "{run}", "--out", "{file}/video.mp4"], "--out"),
+    (["record", "{run}", "--out", "{dir}"], "--out"),
+]
+
+
+@pytest.mark.parametrize("argv, option", UNWRITABLE, ids=[" ".join(a[:1] + a[-2:]) for a, _ in UNWRITABLE])
+def test_unwritable_output_is_one_error_before_the_work(argv, option, base_run, tmp_path, no_work, capsys):
+    a_file, a_dir = tmp_path / "a_file", tmp_path / "a_dir"
+    a_file.write_text("not a directory")
+    a_dir.mkdir()
+    before = snapshot(tmp_path)
+    argv = [a.format(file=a_file, dir=a_dir, run=base_run) for a in argv]
+    with pytest.raises(SystemExit) as exc:
+        main(argv + (TINY if argv[0] == "train" else ["--no-progress"]))
+    assert exc.value.code == 2
+    err = one_error_line(capsys)
+    assert option in err and ("is a file" in err or "is a directory" in err), err
+    assert snapshot(tmp_path) == before and not any(a_dir.iterdir())
+
+
+@pytest.mark.parametrize("argv", [["train", "demo_walk_ppo", "--run-dir", "{ro}/run"],
+                                  ["eval", "{run}", "--out", "{ro}/eval.json"],
+                                  ["record", "{run}", "--out", "{ro}/deeper/video.mp4"]])
+def test_read_only_directory_is_one_error_before_the_work(argv, base_run, tmp_path, no_work, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        try:
+            (ro / "probe").touch()
+        except PermissionError:
+            pass
+        else:  # a path under a file, which stops root too, is tested above
+            pytest.skip("this process writes into read-only directories (root with CAP_DAC_OVERRIDE)")
+        with pytest.raises(SystemExit) as exc:
+            main([a.format(ro=ro, run=base_run) for a in argv] + (TINY if argv[0] == "train" else ["--no-progress"]))
+        assert exc.value.code == 2
+        assert f"cannot create files in {ro}" in one_error_line(capsys)
+        assert not any(ro.iterdir())
+    finally:
+        ro.chmod(0o755)
+
+
+def test_record_refuses_a_directory_before_rendering(tmp_path):
+    with pytest.raises(ValueError, match="is a directory"):
+        smpl_envs.record("SMPL/Nonexistent-v0", "zero", tmp_path)  # refused before the env is even made
+
+
+# ---------------------------------------------------------------------------------------- 8. a full disk
+def test_full_disk_during_a_checkpoint_stops_the_run_with_what_it_saved(tmp_path, full_disk, capsys):
+    run = tmp_path / "run"
+    ckpts = run / "checkpoints"
+    # Saves at 16 steps (ckpt_16, then last.pt) succeed; the disk is full for ckpt_32.
+    free = full_disk(after=2)
+    code = main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=64", "--set", "train.checkpoint_every=16",
+                 "--run-dir", str(run), *TINY])
+    assert code == DISK_FULL
+    err = capsys.readouterr().err
+    assert err.startswith("error: no space left on device") and err.count("\n") == 1, err  # no traceback
+    assert str(ckpts / "ckpt_000000000032.pt") in err and "stopped at 32 timesteps" in err
+    assert f"{ckpts / 'last.pt'} (16 timesteps)" in err and f"smpl-envs train --resume {run}" in err
+    assert agents.load(ckpts / "last.pt").num_timesteps == 16
+    assert sorted(p.name for p in ckpts.iterdir()) == ["ckpt_000000000016.pt", "last.pt"]  # no partial files
+
+    free()  # space freed: the printed command continues the run
+    assert main(["train", "--resume", str(run), *TINY]) == 0
+    assert agents.load(ckpts / "last.pt").num_timesteps == 64
+    assert_increasing(steps_logged(run))
+
+
+def test_full_disk_on_a_run_s_only_save_is_one_error_without_a_resume_command(tmp_path, full_disk, capsys):
+    # The final save of a run without periodic checkpoints: nothing was saved to resume from.
+    fresh = tmp_path / "fresh"
+    full_disk(after=0)
+    assert main(["train", "demo_walk_ppo", "--set", "train.total_timesteps=16", "--run-dir", str(fresh), *TINY]) \
+        == DISK_FULL
+    err = one_error_line(capsys)
+    assert str(fresh / "checkpoints" / "last.pt") in err and "no checkpoint was saved" in err
+    assert "--resume" not in err

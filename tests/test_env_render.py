@@ -138,15 +138,40 @@ def test_record_rejects_what_it_cannot_render(tmp_path):
     assert not (tmp_path / "x.mp4").exists()
 
 
-def test_vec_env_renders_the_chosen_world():
+def test_vec_env_renders_a_frame_per_world_and_the_chosen_world_by_name():
     vec = gym.make_vec(ENV_ID, num_envs=2, render_mode="rgb_array", render_world=1, **SMALL)
     try:
         vec.reset(seed=0)
-        frame = vec.render()
-        assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8 and frame.std() > 10
-        assert skin_pixels(frame).sum() > 200
+        frames = vec.render()  # Gymnasium's vector contract: one frame per world
+        assert isinstance(frames, tuple) and len(frames) == 2
+        for frame in frames:
+            assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8 and frame.std() > 10
+            assert skin_pixels(frame).sum() > 200
+        assert not np.array_equal(frames[0], frames[1])  # two worlds, two random starts
+        np.testing.assert_array_equal(vec.render_frame(), frames[1])  # render_world
+        np.testing.assert_array_equal(vec.render_frame(0), frames[0])
+        with pytest.raises(ValueError, match="world must be in"):
+            vec.render_frame(2)
     finally:
         vec.close()
+
+
+def test_gymnasium_vector_record_video_on_the_native_vector_env(tmp_path):
+    from gymnasium.wrappers.vector import RecordVideo
+
+    folder = tmp_path / "videos"
+    envs = RecordVideo(gym.make_vec(ENV_ID, num_envs=2, render_mode="rgb_array", max_episode_steps=5, **SMALL),
+                       str(folder), episode_trigger=lambda e: True, disable_logger=True)
+    try:
+        envs.reset(seed=0)
+        for _ in range(5):
+            envs.step(np.zeros((2, 69), np.float32))
+    finally:
+        envs.close()
+    videos = sorted(folder.glob("*.mp4"))
+    assert videos, "RecordVideo wrote nothing"
+    frames = iio.imread(videos[0])
+    assert frames.shape[1:] == (120, 320, 3) and len(frames) >= 5  # both worlds side by side, every step
 
 
 def test_make_does_not_warn_about_render_mode():

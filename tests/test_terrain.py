@@ -257,7 +257,11 @@ def test_episode_evaluation_runs_the_protocol():
     (dict(terrain_size=(0, 3)), "terrain_size"),
     (dict(terrain_size=(2.5, 3)), "terrain_size"),
     (dict(tile_size=3.0), "tile_size"),
+    (dict(tile_size=float("nan")), "tile_size"),
+    (dict(tile_size=float("inf")), "tile_size"),
     (dict(terrain_border=-1.0), "terrain_border"),
+    (dict(terrain_border=float("nan")), "terrain_border"),
+    (dict(terrain_border=float("inf")), "terrain_border"),
     (dict(terrain_seed=-1), "terrain_seed"),
     (dict(off_path_distance=0), "off_path_distance"),
 ])

@@ -355,7 +355,7 @@ def test_warp_outputs_are_torch_tensors():
     assert info["point_pos"].shape == (2, 3, 3) and info["point_error"].shape == (2, 3)
     assert info["ref_body_pos"].shape == (2, 24, 3) and info["motion_id"].dtype == torch.int64
     assert torch.allclose(reward, sum(v for k, v in info.items() if k.startswith("reward_")))
-    assert env.render().shape == (48, 64, 3)  # the reference markers read the host library
+    assert env.render_frame().shape == (48, 64, 3)  # the reference markers read the host library
     env.close()
 
 

@@ -179,12 +179,14 @@ def test_takes_an_existing_vector_env_only_in_same_step_mode(make):
         SB3VecEnv(gym.make("Pendulum-v1"))
 
 
-def test_render_gives_one_frame(make):
-    venv = make(num_envs=2, render_mode="rgb_array")
+def test_render_tiles_a_frame_per_world(make):
+    venv = make(num_envs=2, render_mode="rgb_array", render_size=(64, 48))
     assert venv.render_mode == "rgb_array"
     venv.reset()
-    frame = venv.render()
-    assert frame.ndim == 3 and frame.shape[-1] == 3 and frame.dtype == np.uint8 and frame.std() > 1
+    images = venv.get_images()
+    assert len(images) == 2 and all(i.shape == (48, 64, 3) for i in images)
+    frame = venv.render()  # SB3 tiles the worlds' frames into one image
+    assert frame.shape == (96, 64, 3) and frame.dtype == np.uint8 and frame.std() > 1
     quiet = make(num_envs=2)
     quiet.reset()
     with pytest.warns(UserWarning):

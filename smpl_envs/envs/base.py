@@ -56,6 +56,9 @@ RENDER_MODES = ["rgb_array"] + (["human"] if os.environ.get("DISPLAY") or os.env
 PROPRIO_DIM = layout_size(SELF_OBS_LAYOUT)  # every task's observation starts with the self observation
 STARTS = ("random", "beginning")
 FEET = np.array([i for i, n in enumerate(BODY_NAMES) if n.endswith(("Ankle", "Toe"))])
+# Attributes of the batched core that the one-world env does not pass on (SingleEnv).
+VECTOR_ONLY = frozenset({"num_envs", "single_observation_space", "single_action_space", "autoreset_mode",
+                         "render_world"})
 
 
 def load_motions(motions: str | os.PathLike | list | MotionLib, progress: bool = False,
@@ -99,6 +102,17 @@ def check_range(name: str, value, low: float = -np.inf, high: float = np.inf) ->
     return lo, hi
 
 
+def check_number(name: str, value, positive: bool = False) -> float:
+    """A finite number >= 0 (> 0 if `positive`), or a ValueError naming the kwarg."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if isinstance(value, bool) or not np.isfinite(v) or v < 0 or (positive and v == 0):
+        raise ValueError(f"{name} must be a {'positive' if positive else 'non-negative'} finite number, got {value!r}")
+    return v
+
+
 def fallen(body: BodyState, height: float = 0.15, head_height: float = 0.3):
     """(N,) a fall: a body origin other than the feet' below `height` m, or the head's below
     `head_height` m. REFERENCE section 5 also asks for ground contact; heights alone are cheaper
@@ -110,6 +124,22 @@ def fallen(body: BodyState, height: float = 0.15, head_height: float = 0.3):
     return low.any(axis=-1) | (z[:, BODY_NAMES.index("Head")] < head_height)
 
 
+def _render_size(value, model: mujoco.MjModel) -> tuple[int, int]:
+    """render_size as (width, height), each a whole number from 1 up to the model's offscreen
+    buffer; else a ValueError naming the kwarg (0 gave empty frames, a size beyond the buffer an
+    error at the first render)."""
+    limit = (model.vis.global_.offwidth, model.vis.global_.offheight)
+    try:
+        size = tuple(int(v) for v in value)
+        exact = all(float(v) == int(v) and not isinstance(v, bool) for v in value)
+    except (TypeError, ValueError, OverflowError):
+        size, exact = (), False
+    if not exact or len(size) != 2 or not all(1 <= s <= m for s, m in zip(size, limit)):
+        raise ValueError(f"render_size must be (width, height) in pixels, from (1, 1) up to the offscreen "
+                         f"buffer's {limit}, got {value!r}")
+    return size
+
+
 class HumanoidVecEnv(VectorEnv):
     """N simulated SMPL humanoids stepped together; a task subclass supplies what they do.
 
@@ -119,7 +149,8 @@ class HumanoidVecEnv(VectorEnv):
     by their recent failure rate, PHC's hard-negative mining: `clip_sampling`), cache (the
     MotionLib's disk cache),
     max_episode_steps, autoreset_mode, substeps, num_threads, render_mode, render_size,
-    render_world, show_markers, backend ("cpu": MuJoCo, NumPy arrays; "warp": MuJoCo Warp on
+    render_world (the world `render_frame` and the human viewer show; `render()` gives every
+    world's frame), show_markers, backend ("cpu": MuJoCo, NumPy arrays; "warp": MuJoCo Warp on
     `device`, torch tensors in and out; `smpl_envs.backend`) and device.
 
     A task lists the backends its code runs on in `backends`.
@@ -209,7 +240,7 @@ class HumanoidVecEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
 
         self.render_mode = render_mode
-        self.render_size = tuple(render_size)
+        self.render_size = _render_size(render_size, self.model)
         self.render_world = int(render_world)
         self.show_markers = bool(show_markers)
         self._renderer = self._viewer = None
@@ -434,20 +465,30 @@ class HumanoidVecEnv(VectorEnv):
 
     # ------------------------------------------------------------------ rendering
     def render(self):
-        """An RGB frame of world `render_world` (rgb_array) or a live viewer window (human)."""
+        """Gymnasium's vector contract: a tuple of one RGB frame per world (rgb_array; that is
+        num_envs renders, `render_frame` renders one), or a live viewer window of world
+        `render_world` (human; returns None)."""
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make")
             return None
-        world = self.render_world
-        data = self._render_data(world)
-        markers = self._markers(world) if self.show_markers else []
         if self.render_mode == "human":
-            return self._render_human(data)
+            return self._render_human(self._render_data(self.render_world))
+        return tuple(self.render_frame(world) for world in range(self.num_envs))
+
+    def render_frame(self, world: int | None = None):
+        """An RGB frame (height, width, 3) of one world: `world`, by default `render_world`, with
+        its markers unless show_markers=False."""
+        if self.render_mode is None:
+            gym.logger.warn("render_frame() called without a render_mode; pass render_mode='rgb_array'")
+            return None
+        world = self.render_world if world is None else world
+        if not 0 <= world < self.num_envs:
+            raise ValueError(f"world must be in [0, {self.num_envs}), got {world!r}")
         if self._renderer is None:
             from ..render import FrameRenderer
 
             self._renderer = FrameRenderer(self.model, *self.render_size)
-        return self._renderer.render(data, markers)
+        return self._renderer.render(self._render_data(world), self._markers(world) if self.show_markers else [])
 
     def _render_data(self, world: int) -> mujoco.MjData:
         if self.backend.name == "cpu":
@@ -512,7 +553,7 @@ class SingleEnv(gym.Env):
         return obs[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), _unbatch(info)
 
     def render(self):
-        return self.vec.render()
+        return self.vec.render_frame() if self.render_mode == "rgb_array" else self.vec.render()
 
     def close(self):
         self.vec.close()
@@ -522,9 +563,10 @@ class SingleEnv(gym.Env):
 
     def __getattr__(self, name: str):
         # The task's public attributes (observation_structure, motion_lib, model, sim ...),
-        # reachable as env.unwrapped.<name>.
-        if name.startswith("_") or name == "vec":
-            raise AttributeError(name)
+        # reachable as env.unwrapped.<name>; the vector API is not, or other libraries would take
+        # this env for a batched one (torchrl reads num_envs). env.unwrapped.vec has it all.
+        if name.startswith("_") or name == "vec" or name in VECTOR_ONLY:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
         return getattr(self.vec, name)
 
 

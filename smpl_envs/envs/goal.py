@@ -14,7 +14,7 @@ import numpy as np
 
 from ..backend import NumpyBackend
 from ..features import heading_rotation, rotmat_from_quat
-from .base import HumanoidVecEnv, fallen
+from .base import HumanoidVecEnv, check_number, fallen
 
 
 def check_interval(name: str, value) -> tuple[int, int]:
@@ -56,10 +56,8 @@ class GoalVecEnv(HumanoidVecEnv):
     """
 
     def __init__(self, num_envs: int = 1, *, fall_height: float = 0.15, head_height: float = 0.3, **kwargs):
-        for name, value in (("fall_height", fall_height), ("head_height", head_height)):
-            if not (np.isfinite(float(value)) and float(value) >= 0):
-                raise ValueError(f"{name} must be a non-negative height in metres, got {value!r}")
-        self.fall_height, self.head_height = float(fall_height), float(head_height)
+        self.fall_height = check_number("fall_height", fall_height)
+        self.head_height = check_number("head_height", head_height)
         super().__init__(num_envs, **kwargs)
 
     def _reset_task(self, ids, options):

@@ -68,7 +68,7 @@ from .. import metrics
 from ..metrics import recovered_within, recovery_frame  # noqa: F401 (also this module's API)
 from ..evaluation import EvalProtocol, EvalResult, _act, _check_disabled_autoreset
 from ..features import BodyState, xp
-from .base import check_range
+from .base import check_number, check_range
 from .fallen import FallenStates
 from .imitation import ImitationVecEnv
 
@@ -132,17 +132,6 @@ def recovery_reference(sim: BodyState, ref: BodyState, far, clamp: float = CLAMP
     return BodyState(dof_pos=ref.dof_pos, dof_vel=ref.dof_vel, **out)
 
 
-def _number(name: str, value, positive: bool = False) -> float:
-    """A finite number >= 0 (> 0 if `positive`), or a ValueError naming the kwarg."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        v = float("nan")
-    if isinstance(value, bool) or not np.isfinite(v) or v < 0 or (positive and v == 0):
-        raise ValueError(f"{name} must be a {'positive' if positive else 'non-negative'} finite number, got {value!r}")
-    return v
-
-
 # ---------------------------------------------------------------------- per-world recovery state
 class RecoveryController:
     """The recovery state and rules of an imitation env's worlds (module docstring); the env
@@ -158,12 +147,12 @@ class RecoveryController:
                  grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
                  fallen_cache_size=128, fallen_seed=0):
         self.p = check_starts({"reference": 1.0} if starts is None else starts)
-        self.switch_distance = _number("switch_distance", switch_distance, positive=True)
-        self.clamp_distance = _number("clamp_distance", clamp_distance, positive=True)
-        self.point_clip = _number("point_clip", point_clip, positive=True)
-        self.point_scale = _number("point_scale", point_scale)
-        self.imitation_weight = _number("recovery_imitation_weight", recovery_imitation_weight)
-        self.continue_prob = _number("continue_prob", continue_prob)
+        self.switch_distance = check_number("switch_distance", switch_distance, positive=True)
+        self.clamp_distance = check_number("clamp_distance", clamp_distance, positive=True)
+        self.point_clip = check_number("point_clip", point_clip, positive=True)
+        self.point_scale = check_number("point_scale", point_scale)
+        self.imitation_weight = check_number("recovery_imitation_weight", recovery_imitation_weight)
+        self.continue_prob = check_number("continue_prob", continue_prob)
         if self.continue_prob > 1.0:
             raise ValueError(f"continue_prob must be a probability in [0, 1], got {continue_prob!r}")
         if isinstance(grace_steps, bool) or not isinstance(grace_steps, (int, np.integer)) or grace_steps < 0:

@@ -41,7 +41,7 @@ import numpy as np
 from ..evaluation import EpisodeProtocol
 from ..features import rot6d, rot_to_heading, rotmat_from_quat, self_obs, to_heading, xp
 from ..humanoid.skeleton import BODY_NAMES
-from .base import check_range
+from .base import check_number, check_range
 from .goal import GoalVecEnv
 
 STRIKERS = [BODY_NAMES.index(n) for n in ("R_Elbow", "R_Wrist", "R_Hand")]  # may touch the box
@@ -91,7 +91,10 @@ class StrikeVecEnv(GoalVecEnv):
 
     def __init__(self, num_envs: int = 1, *, box_distance=(1.5, 5.0), box_size=(0.4, 0.4, 1.8),
                  box_density: float = 30.0, **kwargs):
-        size = np.asarray(box_size, float)
+        try:
+            size = np.asarray(box_size, float)
+        except (TypeError, ValueError):
+            size = np.full(0, np.nan)
         if size.shape != (3,) or not (np.isfinite(size).all() and (size > 0).all()):
             raise ValueError(f"box_size must be three positive lengths (m), got {box_size!r}")
         self.box_distance = check_range("box_distance", box_distance, 0.0, FLOOR_REACH)
@@ -100,9 +103,7 @@ class StrikeVecEnv(GoalVecEnv):
             raise ValueError(f"box_distance must keep the box clear of the humanoid: at least {clear:.2f} m "
                              f"(its reach {HUMANOID_REACH} m from the pelvis + the box's half-diagonal), "
                              f"got {box_distance!r}")
-        if not float(box_density) > 0:
-            raise ValueError(f"box_density must be positive (kg/m^3), got {box_density!r}")
-        self.box_size, self.box_density = size, float(box_density)
+        self.box_size, self.box_density = size, check_number("box_density", box_density, positive=True)
         super().__init__(num_envs, **kwargs)
         joint = self.model.body_jntadr[mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "box")]
         q, v = self.model.jnt_qposadr[joint], self.model.jnt_dofadr[joint]

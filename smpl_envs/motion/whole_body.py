@@ -1,0 +1,430 @@
+"""Parametrised lower- and whole-body motion families: kicks, squats, lunges, jumps and hops.
+
+Each family is a pure, deterministic function of a few physical parameters returning a
+`RawMotion` at 30 fps that starts and ends standing still (so clips can be chained), built on the
+machinery of `smpl_envs.motion.synthetic` (pelvis trajectory + foot / arm targets solved by
+closed-form IK, centre of mass balanced over the support where the motion is slow, ballistic
+flight where the body leaves the ground). The shipped clips "kick", "crouch" and "jump" are
+particular members (synthetic.py calls these functions).
+
+Parameters are validated: a value that is not finite or outside its range raises ValueError
+naming it. `RANGES[family][parameter]` holds each range (the corpus samples from them); where a
+range depends on another parameter (a kick's reach on its height), a function gives it.
+Lengths in metres, times in seconds, angles in radians; positions are of the toe joint (the ball
+of the foot) unless stated, heights above the floor z = 0, the body facing +x.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..rotations import quat_apply, yaw_quat
+from .motion import FPS, RawMotion
+from .plausibility import GRAVITY
+from .synthetic import (
+    B, BALL_HEIGHT, DEG, MIN_KNEE, OFFSETS, SIDES, _arm, _balanced, _centre_of_mass, _hermite, _keys,
+    _leg_length, _max_pelvis_height, _minjerk, _rot, _solve, _Spec, _standing_legs, _support_point,
+    _time, _upright_spine,
+)
+
+SOURCE = "smpl_envs.motion.whole_body"
+
+RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    # height: toe joint at full extension; reach: its forward travel (see kick_reach_range);
+    # tempo: speed factor of the whole movement (duration 4 s / tempo).
+    "kick": {"height": (0.2, 0.9), "tempo": (0.7, 1.4)},
+    # depth: pelvis drop at the bottom; descent / hold / ascent: durations; width: lateral offset
+    # of each toe joint from the centre line.
+    "squat": {"depth": (0.05, 0.25), "descent": (0.5, 2.0), "hold": (0.0, 2.0), "ascent": (0.5, 2.0),
+              "width": (0.08, 0.2)},
+    # length: forward step of the front toe joint; depth: pelvis drop at the bottom.
+    "lunge": {"length": (0.5, 0.9), "depth": (0.12, 0.3)},
+    # flight: time in the air per jump; distance: travel per jump; direction: of travel relative
+    # to the facing direction (the body keeps facing +x).
+    "jump": {"flight": (0.25, 0.5), "distance": (0.0, 0.8), "direction": (-np.pi, np.pi), "count": (1, 3)},
+    "hop": {"flight": (0.15, 0.3), "distance": (0.0, 0.4), "direction": (-np.pi, np.pi), "count": (1, 4)},
+}
+
+
+# ----------------------------------------------------------------------------- validation
+
+def _check(family: str, name: str, value, bounds: tuple[float, float] | None = None) -> float:
+    lo, hi = RANGES[family][name] if bounds is None else bounds
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{family}: {name} must be a number, got {value!r}") from None
+    if not np.isfinite(x) or not lo - 1e-9 <= x <= hi + 1e-9:
+        raise ValueError(f"{family}: {name} = {value!r} is outside [{lo:.4g}, {hi:.4g}]")
+    return x
+
+
+def _check_count(family: str, value) -> int:
+    lo, hi = RANGES[family]["count"]
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
+        raise ValueError(f"{family}: count = {value!r} must be an integer in [{lo}, {hi}]")
+    return int(value)
+
+
+def _check_side(family: str, side) -> str:
+    if side not in SIDES:
+        raise ValueError(f"{family}: side = {side!r} must be 'L' or 'R'")
+    return side
+
+
+def _other(side: str) -> str:
+    return "R" if side == "L" else "L"
+
+
+def _clip(name: str, spec: _Spec, local: np.ndarray) -> RawMotion:
+    return RawMotion(name, FPS, spec.pelvis_pos.copy(), local, source=SOURCE)
+
+
+# ----------------------------------------------------------------------------- kick
+
+# The shipped kick, the reference the family scales from: toe joint 0.50 m above its standing
+# height and 0.70 m ahead at full extension.
+_KICK_LIFT, _KICK_REACH = 0.50, 0.70
+# Nominal hip of the kicking leg at extension relative to the standing toe joint (back, up): only
+# used to tilt the foot with the leg's elevation.
+_KICK_HIP = (-0.05, 0.80)
+# Straightest and most bent knee at full extension: a locked knee cannot snap, and beyond 80 deg
+# the "kick" is a knee raise.
+_KICK_KNEE = (10 * DEG, 80 * DEG)
+_KICK_DURATION, _KICK_EXTENSION = 4.0, 1.7  # s at tempo 1: the clip, the moment of full extension
+
+
+def _kick_elevation(lift: float, reach: float) -> float:
+    """Angle above the horizontal of the line from the (nominal) hip to the extended toe joint."""
+    return float(np.arctan2(lift - _KICK_HIP[1], reach - _KICK_HIP[0]))
+
+
+def _kick_thigh_elevation(lift: float, reach: float) -> float:
+    """Rough angle of the thigh above the horizontal at full extension, from the (nominal) hip to
+    toe-joint line and the knee bend the distance asks for (thigh 0.38 m, shank and foot 0.53 m)."""
+    thigh, shank = 0.38, 0.53
+    dist = np.hypot(lift - _KICK_HIP[1], reach - _KICK_HIP[0])
+    opening = np.arccos(np.clip((thigh ** 2 + dist ** 2 - shank ** 2) / (2 * thigh * dist), -1.0, 1.0))
+    return _kick_elevation(lift, reach) + float(opening)
+
+
+def kick(side: str = "R", height: float = 0.5, reach: float | None = None, tempo: float = 1.0,
+         name: str = "kick") -> RawMotion:
+    """A front kick with the `side` leg, standing on the other.
+
+    Weight onto the standing foot, chamber the knee, snap the foot out until its toe joint is
+    `height` m above the floor and `reach` m ahead of where it stood, re-chamber, put the foot
+    back, weight back onto both feet. The arms hold a guard that counter-swings (the arm opposite
+    the kicking leg forward at impact); the trunk leans back more for higher kicks. The centre of
+    mass stays over the standing foot throughout.
+
+    height: 0.2-0.9 m. reach: within `kick_reach_range(height, side)` (the knee straight to
+    within 10-80 deg at extension); None picks the middle of it. tempo: 0.7-1.4, the clip
+    lasting 4 s / tempo.
+    """
+    side = _check_side("kick", side)
+    height = _check("kick", "height", height)
+    tempo = _check("kick", "tempo", tempo)
+    lo, hi = kick_reach_range(height, side, tempo)
+    reach = 0.5 * (lo + hi) if reach is None else _check("kick", "reach", reach, (lo, hi))
+    spec = _kick_spec(side, height - BALL_HEIGHT[side], reach, tempo)
+    return _clip(name, spec, _solve(spec))
+
+
+def kick_reach_range(height: float, side: str = "R", tempo: float = 1.0) -> tuple[float, float]:
+    """(shortest, longest) reach (m) of a kick `height` m high: the extended knee bent 80 and
+    10 deg (to within a degree or two)."""
+    side = _check_side("kick", side)
+    height = _check("kick", "height", height)
+    tempo = _check("kick", "tempo", tempo)
+    lift = height - BALL_HEIGHT[side]
+    guess = float(np.sqrt(max(0.8 ** 2 - (_KICK_HIP[1] - lift) ** 2, 0.0))) + _KICK_HIP[0]
+    return tuple(_kick_reach_for_knee(side, lift, knee, tempo, guess) for knee in _KICK_KNEE[::-1])
+
+
+def _kick_reach_for_knee(side: str, lift: float, knee: float, tempo: float, reach: float) -> float:
+    """The reach whose extended knee is bent `knee`: a few fixed-point steps, as the hip (balance,
+    lean) and the foot's tilt move a little with the reach."""
+    for _ in range(3):
+        # Every frame of the kick is solved on its own: the extension frame alone tells where the
+        # hip is.
+        spec = _kick_spec(side, lift, reach, tempo, t=np.array([_KICK_EXTENSION / tempo]))
+        hip = (spec.pelvis_pos + quat_apply(spec.pelvis_quat, OFFSETS[B[f"{side}_Hip"]]))[0]
+        leg = spec.legs[side]
+        toe_off = quat_apply(_rot(leg.foot_yaw, leg.foot_pitch), OFFSETS[B[f"{side}_Toe"]])[0]
+        ankle = leg.ball[0] - toe_off
+        # Toe joint x at which the hip-ankle distance is the leg length for this knee bend.
+        dyz2 = (ankle[1] - hip[1]) ** 2 + (ankle[2] - hip[2]) ** 2
+        x = hip[0] + np.sqrt(max(_leg_length(side, knee) ** 2 - dyz2, 0.0)) + toe_off[0]
+        reach += float(x - leg.ball[0, 0])
+    return reach
+
+
+def _kick_spec(side: str, lift: float, reach: float, tempo: float, t=None) -> _Spec:
+    """The kick solved up to its final IK: pelvis placed, every target set (at times `t`, default
+    the whole clip)."""
+    stand = _other(side)
+    t = _time(_KICK_DURATION / tempo) if t is None else t
+    legs = _standing_legs(t)
+    # Timeline: weight onto the standing foot, chamber the knee, snap the kick, re-chamber, put the
+    # foot back, weight back to both feet.
+    keys = np.array([0.0, 0.5, 1.1, 1.45, _KICK_EXTENSION, 2.0, 2.45, 3.1, _KICK_DURATION]) / tempo
+    on_standing = _keys(t, keys, [0.5, 0.5, 0.97, 0.97, 0.97, 0.97, 0.97, 0.5, 0.5])
+    weight_left = on_standing if stand == "L" else 1 - on_standing
+    # Kicking foot, toe-joint target relative to the standing position (forward, up); the chamber
+    # is the same fraction of the extension for every kick.
+    chamber_fwd, chamber_up = 0.30 / _KICK_REACH, 0.24 / _KICK_LIFT
+    fwd = _keys(t, keys, [0, 0, 0, chamber_fwd * reach, reach, chamber_fwd * reach, 0.0, 0.0, 0.0])
+    up = _keys(t, keys, [0, 0, 0, chamber_up * lift, lift, chamber_up * lift, 0.0, 0.0, 0.0])
+    # Foot world pitch: toes pointed down under the chambered knee; at full extension the ankle is
+    # extended so the sole faces the target (ball-of-foot strike), the foot tilting up with the
+    # leg for higher kicks.
+    extension = -40 * DEG - (_kick_elevation(lift, reach) - _kick_elevation(_KICK_LIFT, _KICK_REACH))
+    pitch = _keys(t, keys, [0, 0, 0, 20 * DEG, extension, 20 * DEG, 0, 0, 0])
+    k = legs[side]
+    k.ball = k.ball + np.stack([fwd, 0 * t, up], -1)
+    k.foot_pitch = pitch
+    k.toe_flat = 1 - _minjerk(up / 0.05)  # toes relax once the foot is off the floor
+    k.grounded = up < 1e-4
+    lean_back = _keys(t, keys, np.deg2rad([0, 0, 0, -6, -14, -6, 0, 0, 0])) * (lift / _KICK_LIFT)
+    pelvis_pitch = 4 * DEG + lean_back
+    angles = _upright_spine(t, pelvis_pitch, lean=1 * DEG + 0.6 * lean_back)
+    # Arms: raised guard that counter-swings, the arm opposite the kicking leg forward and the
+    # other back at impact.
+    guard = _keys(t, keys, [0, 0, 0.6, 1, 1, 1, 0.6, 0, 0])
+    snap = _keys(t, keys, [0, 0, 0, 0.3, 1, 0.3, 0, 0, 0])
+    arms = {stand: _arm(t, stand, (5 + 25 * guard + 20 * snap) * DEG, (12 + 20 * guard) * DEG,
+                        (15 + 75 * guard) * DEG),
+            side: _arm(t, side, (5 + 15 * guard - 40 * snap) * DEG, (12 + 25 * guard) * DEG,
+                       (15 + 70 * guard - 30 * snap) * DEG)}
+    spec = _Spec(t, np.zeros((len(t), 3)), _rot(0 * t, pelvis_pitch), legs, arms, angles)
+    # Only the standing leg limits the height once the kicking foot is off the floor.
+    target = _support_point(spec, weight_left)[:, :2]
+    # A leg raised to near horizontal can hardly swing sideways (and the humanoid's x-y-z hip
+    # hinges lock there: a degree of it takes tens of degrees of abduction and twist). Kicks
+    # raising the thigh higher than the shipped one move in the hip's sagittal plane: the ankle straight in front
+    # of the hip (offset as in the rest pose) instead of ahead of where the foot stood, the foot
+    # (whose yaw sets the knee's hinge axis) not turned out.
+    raised = max(_kick_thigh_elevation(f * lift, g * reach) - _kick_thigh_elevation(f * _KICK_LIFT, g * _KICK_REACH)
+                 for f, g in ((1.0, 1.0), (chamber_up, chamber_fwd)))  # at extension and chamber
+    # Exactly full from half the chamber's height up, where the hip may pass 90 deg of flexion.
+    aim = _minjerk(raised / (10 * DEG)) * _minjerk(up / (0.5 * chamber_up * lift))
+    stand_y = k.ball[:, 1].copy()
+    k.foot_yaw = k.foot_yaw * (1 - aim)  # the knee bends in that plane too: no toe-out
+    leg_y = OFFSETS[B[f"{side}_Knee"], 1] + OFFSETS[B[f"{side}_Ankle"], 1]  # kept by hip flexion
+    toe_y = quat_apply(_rot(k.foot_yaw, k.foot_pitch), OFFSETS[B[f"{side}_Toe"]])[:, 1]
+
+    def aim_at_hip():  # near gimbal lock a millimetre of sideways error is degrees of hip hinge
+        hip_y = (spec.pelvis_pos + quat_apply(spec.pelvis_quat, OFFSETS[B[f"{side}_Hip"]]))[:, 1]
+        k.ball[:, 1] = stand_y + aim * (hip_y + leg_y + toe_y - stand_y)
+
+    for _ in range(5):
+        aim_at_hip()
+        zs, zk = _max_pelvis_height(spec, stand), _max_pelvis_height(spec, side)
+        spec.pelvis_pos[:, 2] = np.where(k.grounded, np.minimum(zs, zk), zs) - 0.02
+        local = _solve(spec)
+        spec.pelvis_pos[:, :2] += target - _centre_of_mass(spec.pelvis_pos, local)[:, :2]
+    aim_at_hip()
+    # Smooth the switch of height limit at lift-off (tiny, but keeps the velocity continuous).
+    zs, zk = _max_pelvis_height(spec, stand), _max_pelvis_height(spec, side)
+    z = np.where(k.grounded, np.minimum(zs, zk), zs) - 0.02
+    spec.pelvis_pos[:, 2] = np.minimum(np.convolve(np.pad(z, 3, mode="edge"), np.ones(7) / 7, "valid"),
+                                       np.minimum(zs, np.where(k.grounded, zk, np.inf)) - 0.005)
+    return spec
+
+
+# ----------------------------------------------------------------------------- squat
+
+_SQUAT_LEAD, _SQUAT_TAIL = 0.6, 1.1  # s standing still before and after
+# The shipped crouch's bend, which the posture scales from: pelvis 0.21 m below the highest the
+# legs allow in the squatting posture.
+_SQUAT_BEND = 0.21
+_SQUAT_BASE_DROP = 0.008  # standing knees slightly soft
+
+
+def squat(depth: float = 0.2, descent: float = 1.0, hold: float = 0.5, width: float = 0.12,
+          ascent: float | None = None, name: str = "squat") -> RawMotion:
+    """A squat: feet flat, `width` m either side of the centre line and turned out 12 deg; the
+    pelvis sinks `depth` m in `descent` s (minimum jerk), stays `hold` s, and rises in `ascent` s
+    (None: as long as the descent). The pelvis tips and the chest leans forward and the arms come
+    up in front as counterweight with the depth (the pelvis tips and the arms rise no further
+    than in the shipped crouch's 0.22 m), the centre of mass staying over the middle of the feet.
+
+    depth: 0.05-0.25 m (knees bent up to ~90 deg; deeper, the hips flex past 90 deg with the
+    thighs turned out over the toes, which the humanoid's x-y-z hip hinges reach only outside
+    their anatomical ranges). descent, ascent: 0.5-2 s. hold: 0-2 s. width: 0.08-0.2 m.
+    """
+    depth = _check("squat", "depth", depth)
+    descent = _check("squat", "descent", descent)
+    hold = _check("squat", "hold", hold)
+    width = _check("squat", "width", width)
+    ascent = descent if ascent is None else _check("squat", "ascent", ascent)
+    return _squat(_squat_bend(depth, width), descent, hold, ascent, width, name)
+
+
+def _squat(bend: float, descent: float, hold: float, ascent: float, width: float, name: str) -> RawMotion:
+    """The squat whose bottom pelvis is `bend` m below the highest the legs allow there."""
+    t0 = _SQUAT_LEAD
+    keys = [0.0, t0, t0 + descent, t0 + descent + hold, t0 + descent + hold + ascent,
+            t0 + descent + hold + ascent + _SQUAT_TAIL]
+    t = _time(keys[-1])
+    spec, drop = _squat_spec(t, _keys(t, keys, [0, 0, 1, 1, 0, 0]), bend, width)
+    return _clip(name, spec, _balanced(spec, 0.5, drop=drop))
+
+
+def _squat_spec(t, depth, bend: float, width: float):
+    """Squat posture for bottom fraction `depth` (0 standing .. 1 bottom) per frame, and the drop
+    below the legs' reach that goes with it."""
+    legs = _standing_legs(t, width=width, toe_out=12 * DEG)
+    s = bend / _SQUAT_BEND  # posture relative to the shipped crouch's
+    pelvis_pitch = 4 * DEG + 20 * DEG * min(s, 1.0) * depth
+    lean = 1 * DEG + 30 * DEG * s * depth
+    angles = _upright_spine(t, pelvis_pitch, lean=lean)
+    angles[:, B["Neck"], 1] += 15 * DEG * s * depth  # keep looking ahead, not at the ceiling
+    # Arms come forward as a counterweight, to shoulder height at most (world flex minus the lean).
+    flex = 3 * DEG + 80 * DEG * min(s, 1.0) * depth
+    arms = {side: _arm(t, side, flex - lean, 10 * DEG, 15 * DEG) for side in SIDES}
+    spec = _Spec(t, np.zeros((len(t), 3)), _rot(0 * t, pelvis_pitch), legs, arms, angles)
+    return spec, _SQUAT_BASE_DROP + bend * depth
+
+
+def _squat_bend(depth: float, width: float) -> float:
+    """The bend whose squat sinks the pelvis `depth` m: tipping the pelvis and sitting back lower
+    the legs' reach too, so the bend is a little less than the depth (secant on a two-frame
+    squat: standing and bottom, each solved exactly as in the clip)."""
+    t = np.zeros(2)
+
+    def sink(bend):
+        spec, drop = _squat_spec(t, np.array([0.0, 1.0]), bend, width)
+        _balanced(spec, 0.5, drop=drop)
+        return spec.pelvis_pos[0, 2] - spec.pelvis_pos[1, 2]
+
+    b0, b1 = depth, depth * depth / sink(depth)
+    f0, f1 = sink(b0) - depth, sink(b1) - depth
+    for _ in range(8):
+        if abs(f1) < 1e-7 or f1 == f0:
+            break
+        b0, b1, f0 = b1, b1 - f1 * (b1 - b0) / (f1 - f0), f1
+        f1 = sink(b1) - depth
+    return b1
+
+
+# ----------------------------------------------------------------------------- jump
+
+# Timeline of one jump from the start of its dip (s): bottom of the dip, heels start rising,
+# take-off; after landing the heels are down at +0.12, the landing absorbed at +0.3, the hips
+# forward again at +0.35, standing at _JUMP_CYCLE.
+_JUMP_LEAD, _JUMP_TAIL = 0.5, 0.5
+_JUMP_BOTTOM, _JUMP_HEELS, _JUMP_OFF, _JUMP_CYCLE = 0.55, 0.65, 0.9, 2.6
+_JUMP_HEEL = 32 * DEG  # heels up at take-off and landing (on the balls of the feet)
+_JUMP_REF_FLIGHT = 0.4  # the shipped jump's: dip and landing absorption scale with the flight
+_JUMP_DIP, _JUMP_ABSORB = 0.20, 0.15
+_JUMP_HIPS = -0.02  # pelvis x relative to its standing position at take-off and landing
+# Above this horizontal speed the pelvis leads the feet at take-off and trails them at landing by
+# _JUMP_LEAD_GAIN s per m/s of the excess: a fast jump leans into its take-off and lands with the
+# feet ahead, so the hips neither swing back before take-off nor overshoot the feet after landing.
+_JUMP_LEAD_SPEED, _JUMP_LEAD_GAIN = 0.75, 0.12
+
+
+def jump(flight: float = 0.4, distance: float = 0.3, direction: float = 0.0, count: int = 1,
+         name: str = "jump") -> RawMotion:
+    """Two-footed countermovement jumps: dip (hips back, arms back), drive up onto the balls of the
+    feet with the arms swinging up, a ballistic flight of `flight` s with the legs tucked a
+    little, land on the balls, absorb, stand up; `count` times in a row, each travelling
+    `distance` m in the direction `direction` (rad, 0 = forward, pi/2 = to the left; the body
+    keeps facing +x).
+
+    flight: 0.25-0.5 s (pelvis apex g flight^2 / 8 = 8-31 cm above take-off). distance: 0-0.8 m.
+    direction: -pi..pi. count: 1-3 (the clip lasts 1 + 2.6 count s).
+    """
+    flight = _check("jump", "flight", flight)
+    distance = _check("jump", "distance", distance)
+    direction = _check("jump", "direction", direction)
+    count = _check_count("jump", count)
+    t = _time(_JUMP_LEAD + count * _JUMP_CYCLE + _JUMP_TAIL)
+    legs = _standing_legs(t)
+    n = len(t)
+    u = np.array([np.cos(direction), np.sin(direction)])
+    travel = distance * u
+    speed = distance / flight
+    if speed > _JUMP_LEAD_SPEED:  # solve |v| flight = distance - 2 lead(|v|)
+        speed = (distance + 2 * _JUMP_LEAD_GAIN * _JUMP_LEAD_SPEED) / (flight + 2 * _JUMP_LEAD_GAIN)
+    lead = _JUMP_LEAD_GAIN * max(speed - _JUMP_LEAD_SPEED, 0.0) * u
+    hips = np.array([_JUMP_HIPS, 0.0])
+    at_off, at_land = hips + lead, hips - lead  # pelvis xy relative to the stance
+    v_xy = (travel + at_land - at_off) / flight
+    vz = GRAVITY * flight / 2  # take-off and landing at the same height
+    scale = flight / _JUMP_REF_FLIGHT
+    starts = _JUMP_LEAD + _JUMP_CYCLE * np.arange(count)  # start of each dip
+    t_off = starts + _JUMP_OFF
+    t_land = t_off + flight
+    air = np.zeros(n, bool)
+    for a, b in zip(t_off, t_land):
+        air |= (t > a + 1e-6) & (t < b - 1e-6)
+
+    # Feet: heels rise before take-off and drop after landing; in the air the balls follow the
+    # pelvis with the legs tucked a little; each stance is `travel` beyond the last.
+    pitch = sum(_keys(t, [0, s + _JUMP_HEELS, a, b, b + 0.12, s + _JUMP_CYCLE + _JUMP_TAIL],
+                      [0, 0, _JUMP_HEEL, _JUMP_HEEL, 0, 0]) for s, a, b in zip(starts, t_off, t_land))
+    stance = sum(np.clip((t - a) / flight, 0, 1)[:, None] * travel for a in t_off)
+    for leg in legs.values():
+        leg.foot_pitch = pitch
+        leg.grounded = ~air
+
+    # Pelvis xy, each jump's share relative to its own stance (zero before it, `travel` after):
+    # hips back during the dip, forward through the flight, absorbing after landing.
+    xy = sum(_hermite(t, [0, s, s + _JUMP_BOTTOM, a, b, b + 0.35, s + _JUMP_CYCLE - 0.1, s + _JUMP_CYCLE + _JUMP_TAIL],
+                      np.array([[0, 0], [0, 0], [-0.08, 0], at_off, travel + at_land, travel + [-0.06, 0],
+                                travel, travel]),
+                      np.array([[0, 0], [0, 0], [0, 0], v_xy, v_xy, [0, 0], [0, 0], [0, 0]]))
+             for s, a, b in zip(starts, t_off, t_land))
+    # One hermite shape per signal and jump: the trunk pitches with the dip and the landing, the
+    # arms swing back in the dip and up through take-off, forward for the landing.
+    def posture(values):
+        return sum(_hermite(t, [0, s, s + _JUMP_BOTTOM, a, b, b + 0.3, s + _JUMP_CYCLE, s + _JUMP_CYCLE + _JUMP_TAIL],
+                            values, [0] * 8) for s, a, b in zip(starts, t_off, t_land))
+
+    pelvis_pitch = 4 * DEG + posture(np.deg2rad([0, 0, 18, 5, 8, 15, 0, 0]))
+    lean = 1 * DEG + posture(np.deg2rad([0, 0, 32, 4, 8, 24, 0, 0]))
+    pos = np.zeros((n, 3))
+    pos[:, :2] = xy
+    spec = _Spec(t, pos, _rot(0 * t, pelvis_pitch), legs, {}, _upright_spine(t, pelvis_pitch, lean=lean))
+    flex = np.deg2rad(3 + posture([0, 0, -48, 107, 57, 37, 0, 0])) - lean
+    spec.arms = {side: _arm(t, side, flex, 12 * DEG, 25 * DEG) for side in SIDES}
+
+    # Where the legs allow the pelvis at take-off (heels up, knees nearly straight); the landing
+    # pose mirrors it, so take-off and landing heights are equal and the flight is symmetric.
+    for leg in legs.values():
+        leg.ball = leg.ball + np.concatenate([stance, np.zeros((n, 1))], -1)
+    zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
+    z_stand = np.min(zmax[: int(_JUMP_LEAD * FPS)]) - 0.005
+    z = np.full(n, z_stand)
+    rel = {s: np.zeros((n, 3)) for s in SIDES}
+    for s, a, b in zip(starts, t_off, t_land):
+        i_off, i_land = int(round(a * FPS)), min(int(round(b * FPS)), n - 1)
+        z_off = min(zmax[i_off], zmax[i_land]) - 0.01
+        rise = _hermite(t, [0, s, s + _JUMP_BOTTOM, a],
+                        [z_stand, z_stand, z_stand - _JUMP_DIP * scale, z_off], [0, 0, 0, vz])
+        tau = t - a
+        ballistic = z_off + vz * tau - 0.5 * GRAVITY * tau ** 2
+        settle = _hermite(t, [b, b + 0.3, s + _JUMP_CYCLE, s + _JUMP_CYCLE + _JUMP_TAIL],
+                          [z_off, z_stand - _JUMP_ABSORB * scale, z_stand, z_stand], [-vz, 0, 0, 0])
+        mine = (t > s - 1e-6) & (t < s + _JUMP_CYCLE + 1e-6)
+        z = np.where(mine, np.where(t > a + 1e-6, np.where(t >= b - 1e-6, settle, ballistic), rise), z)
+        # In the air the balls hang below the hips as at take-off, swinging to where they land
+        # relative to the hips, and tucked by up to 12 cm at the apex.
+        in_flight = (t > a + 1e-6) & (t < b - 1e-6)
+        frac = np.clip(tau / flight, 0, 1)
+        tuck = 0.12 * np.sin(np.pi * frac) ** 2
+        for side, leg in legs.items():
+            off = leg.ball[i_off] - [*pos[i_off, :2], z_off]
+            land = off + np.append(at_off - at_land, 0.0)
+            rel[side][in_flight] = (off + _minjerk(frac)[:, None] * (land - off)
+                                    + np.stack([0 * t, 0 * t, tuck], -1))[in_flight]
+    spec.pelvis_pos[:, 2] = z
+    for side, leg in legs.items():
+        leg.ball = np.where(air[:, None], spec.pelvis_pos + rel[side], leg.ball)
+    # Never ask a leg for more than it reaches (grounded frames only; the flight is fixed).
+    zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
+    spec.pelvis_pos[:, 2] = np.where(air, z, np.minimum(z, zmax - 0.005))
+    return _clip(name, spec, _solve(spec))

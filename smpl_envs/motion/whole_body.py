@@ -16,15 +16,17 @@ of the foot) unless stated, heights above the floor z = 0, the body facing +x.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from ..rotations import quat_apply, yaw_quat
 from .motion import FPS, RawMotion
 from .plausibility import GRAVITY
 from .synthetic import (
-    B, BALL_HEIGHT, DEG, MIN_KNEE, OFFSETS, SIDES, _arm, _balanced, _centre_of_mass, _hermite, _keys,
-    _leg_length, _max_pelvis_height, _minjerk, _rot, _solve, _Spec, _standing_legs, _support_point,
-    _time, _upright_spine,
+    B, BALL_HEIGHT, DEG, FOOT_CENTRE, OFFSETS, SIDES, SKELETON, _arm, _balanced, _centre_of_mass,
+    _hermite, _keys, _leg_length, _max_pelvis_height, _minjerk, _rot, _smooth_below, _solve, _Spec,
+    _standing_legs, _support_point, _time, _upright_spine,
 )
 
 SOURCE = "smpl_envs.motion.whole_body"
@@ -36,7 +38,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     # depth: pelvis drop at the bottom; descent / hold / ascent: durations; width: lateral offset
     # of each toe joint from the centre line.
     "squat": {"depth": (0.05, 0.25), "descent": (0.5, 2.0), "hold": (0.0, 2.0), "ascent": (0.5, 2.0),
-              "width": (0.08, 0.2)},
+              "width": (0.08, 0.14)},
     # length: forward step of the front toe joint; depth: pelvis drop at the bottom.
     "lunge": {"length": (0.5, 0.9), "depth": (0.12, 0.3)},
     # flight: time in the air per jump; distance: travel per jump; direction: of travel relative
@@ -94,18 +96,18 @@ _KICK_KNEE = (10 * DEG, 80 * DEG)
 _KICK_DURATION, _KICK_EXTENSION = 4.0, 1.7  # s at tempo 1: the clip, the moment of full extension
 
 
-def _kick_elevation(lift: float, reach: float) -> float:
+def _kick_elevation(lift, reach):
     """Angle above the horizontal of the line from the (nominal) hip to the extended toe joint."""
-    return float(np.arctan2(lift - _KICK_HIP[1], reach - _KICK_HIP[0]))
+    return np.arctan2(lift - _KICK_HIP[1], reach - _KICK_HIP[0])
 
 
-def _kick_thigh_elevation(lift: float, reach: float) -> float:
+def _kick_thigh_elevation(lift, reach):
     """Rough angle of the thigh above the horizontal at full extension, from the (nominal) hip to
     toe-joint line and the knee bend the distance asks for (thigh 0.38 m, shank and foot 0.53 m)."""
     thigh, shank = 0.38, 0.53
     dist = np.hypot(lift - _KICK_HIP[1], reach - _KICK_HIP[0])
     opening = np.arccos(np.clip((thigh ** 2 + dist ** 2 - shank ** 2) / (2 * thigh * dist), -1.0, 1.0))
-    return _kick_elevation(lift, reach) + float(opening)
+    return _kick_elevation(lift, reach) + opening
 
 
 def kick(side: str = "R", height: float = 0.5, reach: float | None = None, tempo: float = 1.0,
@@ -118,19 +120,28 @@ def kick(side: str = "R", height: float = 0.5, reach: float | None = None, tempo
     the kicking leg forward at impact); the trunk leans back more for higher kicks. The centre of
     mass stays over the standing foot throughout.
 
-    height: 0.2-0.9 m. reach: within `kick_reach_range(height, side)` (the knee straight to
-    within 10-80 deg at extension); None picks the middle of it. tempo: 0.7-1.4, the clip
-    lasting 4 s / tempo.
+    height: 0.2-0.9 m. reach: within `kick_reach_range(height, side, tempo)`, which keeps the
+    extended knee bent 10-80 deg (checked on the solved kick, to 3 deg); None picks the middle of
+    that range. tempo: 0.7-1.4, the clip lasting 4 s / tempo.
     """
     side = _check_side("kick", side)
     height = _check("kick", "height", height)
     tempo = _check("kick", "tempo", tempo)
-    lo, hi = kick_reach_range(height, side, tempo)
-    reach = 0.5 * (lo + hi) if reach is None else _check("kick", "reach", reach, (lo, hi))
+    if reach is None:
+        reach = float(np.mean(kick_reach_range(height, side, tempo)))
+    reach = _check("kick", "reach", reach, (0.0, 1.0))  # finite; the leg's own bound follows
     spec = _kick_spec(side, height - BALL_HEIGHT[side], reach, tempo)
-    return _clip(name, spec, _solve(spec))
+    local = _solve(spec)
+    knee = 2 * np.arctan2(local[:, B[f"{side}_Knee"], 2], local[:, B[f"{side}_Knee"], 0])  # about y
+    bend = knee[int(round(_KICK_EXTENSION / tempo * FPS))]
+    if not _KICK_KNEE[0] - 3 * DEG <= bend <= _KICK_KNEE[1] + 3 * DEG:
+        lo, hi = kick_reach_range(height, side, tempo)
+        raise ValueError(f"kick: reach = {reach!r} m leaves the extended knee bent {np.degrees(bend):.0f} deg; "
+                         f"a kick {height:.3g} m high reaches [{lo:.3f}, {hi:.3f}] m")
+    return _clip(name, spec, local)
 
 
+@lru_cache(maxsize=1024)
 def kick_reach_range(height: float, side: str = "R", tempo: float = 1.0) -> tuple[float, float]:
     """(shortest, longest) reach (m) of a kick `height` m high: the extended knee bent 80 and
     10 deg (to within a degree or two)."""
@@ -139,30 +150,26 @@ def kick_reach_range(height: float, side: str = "R", tempo: float = 1.0) -> tupl
     tempo = _check("kick", "tempo", tempo)
     lift = height - BALL_HEIGHT[side]
     guess = float(np.sqrt(max(0.8 ** 2 - (_KICK_HIP[1] - lift) ** 2, 0.0))) + _KICK_HIP[0]
-    return tuple(_kick_reach_for_knee(side, lift, knee, tempo, guess) for knee in _KICK_KNEE[::-1])
-
-
-def _kick_reach_for_knee(side: str, lift: float, knee: float, tempo: float, reach: float) -> float:
-    """The reach whose extended knee is bent `knee`: a few fixed-point steps, as the hip (balance,
-    lean) and the foot's tilt move a little with the reach."""
-    for _ in range(3):
-        # Every frame of the kick is solved on its own: the extension frame alone tells where the
-        # hip is.
-        spec = _kick_spec(side, lift, reach, tempo, t=np.array([_KICK_EXTENSION / tempo]))
-        hip = (spec.pelvis_pos + quat_apply(spec.pelvis_quat, OFFSETS[B[f"{side}_Hip"]]))[0]
+    knee = np.array(_KICK_KNEE[::-1])
+    reach = np.full(2, guess)
+    for _ in range(5):  # fixed point: the hip (balance, lean) and the foot's tilt move with the reach
+        # Every frame of the kick is solved on its own: two copies of the extension frame, one
+        # per bound, tell where the hip is.
+        spec = _kick_spec(side, lift, reach, tempo, t=np.full(2, _KICK_EXTENSION / tempo))
+        hip = spec.pelvis_pos + quat_apply(spec.pelvis_quat, OFFSETS[B[f"{side}_Hip"]])
         leg = spec.legs[side]
-        toe_off = quat_apply(_rot(leg.foot_yaw, leg.foot_pitch), OFFSETS[B[f"{side}_Toe"]])[0]
-        ankle = leg.ball[0] - toe_off
+        toe_off = quat_apply(_rot(leg.foot_yaw, leg.foot_pitch), OFFSETS[B[f"{side}_Toe"]])
+        ankle = leg.ball - toe_off
         # Toe joint x at which the hip-ankle distance is the leg length for this knee bend.
-        dyz2 = (ankle[1] - hip[1]) ** 2 + (ankle[2] - hip[2]) ** 2
-        x = hip[0] + np.sqrt(max(_leg_length(side, knee) ** 2 - dyz2, 0.0)) + toe_off[0]
-        reach += float(x - leg.ball[0, 0])
-    return reach
+        dyz2 = (ankle[:, 1] - hip[:, 1]) ** 2 + (ankle[:, 2] - hip[:, 2]) ** 2
+        x = hip[:, 0] + np.sqrt(np.maximum(_leg_length(side, knee) ** 2 - dyz2, 0.0)) + toe_off[:, 0]
+        reach = reach + x - leg.ball[:, 0]
+    return float(reach[0]), float(reach[1])
 
 
-def _kick_spec(side: str, lift: float, reach: float, tempo: float, t=None) -> _Spec:
+def _kick_spec(side: str, lift: float, reach, tempo: float, t=None) -> _Spec:
     """The kick solved up to its final IK: pelvis placed, every target set (at times `t`, default
-    the whole clip)."""
+    the whole clip; `reach` may differ per frame)."""
     stand = _other(side)
     t = _time(_KICK_DURATION / tempo) if t is None else t
     legs = _standing_legs(t)
@@ -174,13 +181,14 @@ def _kick_spec(side: str, lift: float, reach: float, tempo: float, t=None) -> _S
     # Kicking foot, toe-joint target relative to the standing position (forward, up); the chamber
     # is the same fraction of the extension for every kick.
     chamber_fwd, chamber_up = 0.30 / _KICK_REACH, 0.24 / _KICK_LIFT
-    fwd = _keys(t, keys, [0, 0, 0, chamber_fwd * reach, reach, chamber_fwd * reach, 0.0, 0.0, 0.0])
-    up = _keys(t, keys, [0, 0, 0, chamber_up * lift, lift, chamber_up * lift, 0.0, 0.0, 0.0])
+    fwd = reach * _keys(t, keys, [0, 0, 0, chamber_fwd, 1, chamber_fwd, 0, 0, 0])
+    up = lift * _keys(t, keys, [0, 0, 0, chamber_up, 1, chamber_up, 0, 0, 0])
     # Foot world pitch: toes pointed down under the chambered knee; at full extension the ankle is
     # extended so the sole faces the target (ball-of-foot strike), the foot tilting up with the
     # leg for higher kicks.
     extension = -40 * DEG - (_kick_elevation(lift, reach) - _kick_elevation(_KICK_LIFT, _KICK_REACH))
-    pitch = _keys(t, keys, [0, 0, 0, 20 * DEG, extension, 20 * DEG, 0, 0, 0])
+    pitch = (_keys(t, keys, [0, 0, 0, 20 * DEG, 0, 20 * DEG, 0, 0, 0])
+             + extension * _keys(t, keys, [0, 0, 0, 0, 1, 0, 0, 0, 0]))
     k = legs[side]
     k.ball = k.ball + np.stack([fwd, 0 * t, up], -1)
     k.foot_pitch = pitch
@@ -205,8 +213,8 @@ def _kick_spec(side: str, lift: float, reach: float, tempo: float, t=None) -> _S
     # raising the thigh higher than the shipped one move in the hip's sagittal plane: the ankle straight in front
     # of the hip (offset as in the rest pose) instead of ahead of where the foot stood, the foot
     # (whose yaw sets the knee's hinge axis) not turned out.
-    raised = max(_kick_thigh_elevation(f * lift, g * reach) - _kick_thigh_elevation(f * _KICK_LIFT, g * _KICK_REACH)
-                 for f, g in ((1.0, 1.0), (chamber_up, chamber_fwd)))  # at extension and chamber
+    raised = np.maximum(*(_kick_thigh_elevation(f * lift, g * reach) - _kick_thigh_elevation(f * _KICK_LIFT, g * _KICK_REACH)
+                          for f, g in ((1.0, 1.0), (chamber_up, chamber_fwd))))  # at extension and chamber
     # Exactly full from half the chamber's height up, where the hip may pass 90 deg of flexion.
     aim = _minjerk(raised / (10 * DEG)) * _minjerk(up / (0.5 * chamber_up * lift))
     stand_y = k.ball[:, 1].copy()
@@ -252,7 +260,8 @@ def squat(depth: float = 0.2, descent: float = 1.0, hold: float = 0.5, width: fl
 
     depth: 0.05-0.25 m (knees bent up to ~90 deg; deeper, the hips flex past 90 deg with the
     thighs turned out over the toes, which the humanoid's x-y-z hip hinges reach only outside
-    their anatomical ranges). descent, ascent: 0.5-2 s. hold: 0-2 s. width: 0.08-0.2 m.
+    their anatomical ranges). descent, ascent: 0.5-2 s. hold: 0-2 s. width: 0.08-0.14 m (wider, the
+    turned-out thighs of a deep squat leave the hip's range too).
     """
     depth = _check("squat", "depth", depth)
     descent = _check("squat", "descent", descent)
@@ -428,3 +437,225 @@ def jump(flight: float = 0.4, distance: float = 0.3, direction: float = 0.0, cou
     zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
     spec.pelvis_pos[:, 2] = np.where(air, z, np.minimum(z, zmax - 0.005))
     return _clip(name, spec, _solve(spec))
+
+
+# ----------------------------------------------------------------------------- hop
+
+_HOP_STANCE = 0.3  # s on the ground between hops
+_HOP_HEEL = 25 * DEG  # the hopping foot's heel up from take-off to the last landing
+_HOP_HOLD = np.array([-0.10, 0.0, 0.22])  # the free toe joint held back and up (m, from standing)
+_HOP_TUCK = 0.05  # m, the hopping foot drawn up at the apex
+
+
+def hop(side: str = "L", count: int = 2, flight: float = 0.25, distance: float = 0.0,
+        direction: float = 0.0, name: str = "hop") -> RawMotion:
+    """Hops on the `side` leg, the other foot held up behind: weight onto the hopping foot, lift
+    the other, a dip, then `count` hops of `flight` s in the air each travelling `distance` m in
+    the direction `direction` (rad, 0 = forward; the body keeps facing +x), landing on the ball
+    of the foot; settle, put the free foot down beside it, weight back onto both feet.
+
+    Between hops the stance lasts 0.3 s and the pelvis moves on at the hop's mean speed, its
+    height a half sine that reverses the landing speed (a spring-mass stance); in the air it
+    follows z'' = -g and carries on at that speed. The centre of mass is over the hopping foot
+    while the body is still.
+
+    count: 1-4. flight: 0.15-0.3 s (pelvis apex g flight^2 / 8 = 3-11 cm above take-off).
+    distance: 0-0.4 m per hop. direction: -pi..pi.
+    """
+    side = _check_side("hop", side)
+    count = _check_count("hop", count)
+    flight = _check("hop", "flight", flight)
+    distance = _check("hop", "distance", distance)
+    direction = _check("hop", "direction", direction)
+    free = _other(side)
+    # Timeline (s): weight over by 1.1, free foot up by 1.5, dip from 1.6, hops, settle.
+    t_dip = 1.6
+    t_bottom, t_off = t_dip + 0.3, t_dip + 0.5
+    t_offs = t_off + np.arange(count) * (flight + _HOP_STANCE)
+    t_lands = t_offs + flight
+    t_end = t_lands[-1]
+    t_settled, t_still = t_end + 0.4, t_end + 0.7
+    keys = [0.0, 0.5, 1.1, 1.5, t_still, t_still + 0.5, t_still + 1.1, t_still + 1.6]
+    t = _time(keys[-1])
+    n = len(t)
+    legs = _standing_legs(t)
+    on_hop = _keys(t, keys, [0.5, 0.5, 0.97, 0.97, 0.97, 0.97, 0.5, 0.5])
+    weight_left = on_hop if side == "L" else 1 - on_hop
+    up = _keys(t, keys, [0, 0, 0, 1, 1, 0, 0, 0])  # free foot: 0 down .. 1 held
+
+    u = np.array([np.cos(direction), np.sin(direction), 0.0])
+    speed = distance / (flight + _HOP_STANCE)  # mean horizontal speed while hopping
+    half = speed * _HOP_STANCE / 2  # the pelvis passes over the foot at mid-stance
+    # Pelvis travel along u: from rest at the dip's bottom to `speed` at the first take-off, then
+    # steady (ballistic in the air), back to rest over the last footstep.
+    travel = _hermite(t, [t_bottom, t_offs[0], t_end, t_settled],
+                      [0.0, half, count * distance - half, count * distance], [0.0, speed, speed, 0.0])
+    air = np.zeros(n, bool)
+    landed = np.zeros(n)
+    for a, b in zip(t_offs, t_lands):
+        air |= (t > a + 1e-6) & (t < b - 1e-6)
+        landed += t >= b - 1e-6
+    h, f = legs[side], legs[free]
+    home = h.ball.copy()
+    h.ball = home + (landed * distance)[:, None] * u
+    h.foot_pitch = _keys(t, [0, t_bottom, t_offs[0], t_end, t_end + 0.12, keys[-1]], [0, 0, _HOP_HEEL, _HOP_HEEL, 0, 0])
+    h.grounded = ~air
+    f.foot_pitch = 30 * DEG * up  # the held foot hangs, toes down
+    f.toe_flat = 1 - up
+    f.grounded = up <= 0
+    free_home = f.ball.copy()
+    moved = (t > 0.5 * (t_offs[0] + t_end))[:, None] * (count * distance) * u  # stance it returns to
+
+    pelvis_pitch = np.full(n, 4 * DEG)
+    angles = _upright_spine(t, pelvis_pitch, lean=3 * DEG)
+    # Arms a little out for balance, swinging up with each take-off.
+    spec = _Spec(t, np.zeros((n, 3)), _rot(0 * t, pelvis_pitch), legs,
+                 {s: _arm(t, s, 10 * DEG, (12 + 20 * up) * DEG, (20 + 40 * up) * DEG) for s in SIDES}, angles)
+    spec.pelvis_pos[:, :2] = moved[:, :2]
+    target = _support_point(spec, weight_left)[:, :2]  # recomputed: the hopping foot moves
+    still = (t <= t_dip + 1e-6) | (t >= t_settled - 1e-6)  # balanced statically
+    i_dip = int(round(t_dip * FPS))
+    vz = GRAVITY * flight / 2
+    dip = vz * _HOP_STANCE / np.pi  # as deep as a stance between hops compresses
+
+    def hold_free_foot():
+        rest = spec.pelvis_pos[0] + moved  # where the pelvis stands on two feet
+        f.ball = free_home + moved + up[:, None] * (spec.pelvis_pos - rest + _HOP_HOLD)
+
+    def place_height():
+        zh, zf = _max_pelvis_height(spec, side), _max_pelvis_height(spec, free)
+        z_still = np.where(f.grounded, np.minimum(zh, zf), zh) - 0.02
+        z1 = z_still[i_dip]  # standing on one leg
+        contact = [int(round(x * FPS)) for x in np.concatenate([t_offs, t_lands])]
+        z_off = np.min(zh[np.minimum(contact, n - 1)]) - 0.01  # heel up, knee nearly straight
+        z = _hermite(t, [t_dip, t_bottom, t_offs[0]], [z1, z1 - dip, z_off], [0, 0, vz])
+        for j, (a, b) in enumerate(zip(t_offs, t_lands)):
+            tau = t - a
+            z = np.where(t > a + 1e-6, z_off + vz * tau - 0.5 * GRAVITY * tau ** 2, z)
+            if j + 1 < count:  # spring-mass stance to the next take-off
+                tau = t - b
+                z = np.where(t >= b - 1e-6, z_off - dip * np.sin(np.pi * tau / _HOP_STANCE), z)
+        settle = _hermite(t, [t_end, t_settled, t_still], [z_off, z1 - dip, z1], [-vz, 0, 0])
+        z = np.where(t >= t_end - 1e-6, settle, z)
+        z = np.where(air, z, np.minimum(z, zh - 0.005))  # grounded frames within reach
+        # Smooth the switch of height limit at the free foot's lift-off and touchdown.
+        smooth = np.minimum(np.convolve(np.pad(z_still, 3, mode="edge"), np.ones(7) / 7, "valid"),
+                            np.minimum(zh, np.where(f.grounded, zf, np.inf)) - 0.005)
+        spec.pelvis_pos[:, 2] = np.where((t < t_dip + 1e-6) | (t > t_still - 1e-6), smooth, z)
+
+    # With the heel up only the toe box bears weight: the body leans on over it (the whole body
+    # but the foot moves, so the pelvis shifts about as far as the centre of mass has to).
+    on_ball = h.foot_pitch / _HOP_HEEL
+    toe_box = np.asarray(SKELETON.geoms[B[f"{side}_Toe"]].pos) * [1.0, 1.0, 0.0]
+    to_ball = quat_apply(yaw_quat(h.foot_yaw[0]), toe_box - FOOT_CENTRE[side])[:2]
+    for _ in range(6):
+        hold_free_foot()
+        place_height()
+        target = _support_point(spec, weight_left)[:, :2]
+        com = _centre_of_mass(spec.pelvis_pos, _solve(spec))[:, :2]
+        spec.pelvis_pos[still, :2] += (target - com)[still]
+        offset = spec.pelvis_pos[i_dip, :2] - home[i_dip, :2]  # pelvis over the hopping foot
+        spec.pelvis_pos[~still, :2] = (home[:, :2] + offset + on_ball[:, None] * to_ball
+                                       + travel[:, None] * u[:2])[~still]
+    hold_free_foot()
+    place_height()
+    # The hopping foot in the air: below the hips as at take-off, swinging forward to where it
+    # lands, drawn up a little at the apex.
+    for a, b in zip(t_offs, t_lands):
+        frac = np.clip((t - a) / flight, 0.0, 1.0)
+        swing = (travel - half + 2 * half * _minjerk(frac))[:, None] * u
+        lift = spec.pelvis_pos[:, 2] - spec.pelvis_pos[int(round(a * FPS)), 2] + _HOP_TUCK * np.sin(np.pi * frac) ** 2
+        in_air = home + swing + lift[:, None] * [0.0, 0.0, 1.0]
+        mine = (t > a + 1e-6) & (t < b - 1e-6)
+        h.ball[mine] = in_air[mine]
+    return _clip(name, spec, _solve(spec))
+
+
+# ----------------------------------------------------------------------------- lunge
+
+# Timeline (s): weight onto the back foot, step (a controlled fall onto the front foot), sink,
+# hold, rise, step back (pushing off the front foot), weight to the middle, stand.
+_LUNGE_KEYS = (0.0, 0.5, 1.1, 1.7, 2.7, 3.2, 4.2, 4.8, 5.4, 5.9)
+_LUNGE_STEPS = ((1.1, 1.7), (4.2, 4.8))  # the front foot in the air; the body not balanced
+_LUNGE_HEEL = 45 * DEG  # back heel raised at the bottom (the back foot on its ball)
+_LUNGE_ARC = 0.06  # m, front toe joint's clearance at mid-swing
+
+
+def lunge(side: str = "L", length: float = 0.7, depth: float = 0.2, name: str = "lunge") -> RawMotion:
+    """A forward lunge onto the `side` foot: weight onto the back foot, the front foot steps
+    `length` m forward on a low arc while the body falls forward onto it, the pelvis sinks until
+    it is `depth` m below its standing height with the back heel rising onto the ball, holds,
+    rises, and the front foot steps back beside the other; 5.9 s. While the feet are planted the
+    centre of mass is balanced over the support (the front foot and the back foot's ball).
+
+    length: 0.5-0.9 m. depth: 0.12-0.3 m, and at least `lunge_depth_min(length)` (the legs
+    already straddle that low, however straight).
+    """
+    side = _check_side("lunge", side)
+    length = _check("lunge", "length", length)
+    lo = lunge_depth_min(length, side)
+    depth = _check("lunge", "depth", depth, (max(lo, RANGES["lunge"]["depth"][0]), RANGES["lunge"]["depth"][1]))
+    spec = _lunge_spec(side, length, depth)
+    return _clip(name, spec, _solve(spec))
+
+
+def lunge_depth_min(length: float, side: str = "L") -> float:
+    """The smallest pelvis drop (m) of a lunge `length` m long: at the bottom both legs must
+    reach the floor with their knees bent."""
+    side = _check_side("lunge", side)
+    length = _check("lunge", "length", length)
+    t = np.array([0.0, 3.0])  # standing, and the middle of the hold
+    spec = _lunge_spec(side, length, 0.0, t)
+    return float(spec.pelvis_pos[0, 2] - spec.pelvis_pos[1, 2])
+
+
+def _lunge_spec(side: str, length: float, depth: float, t=None) -> _Spec:
+    """The lunge with its pelvis placed. At times `t` (default the clip's) that are all frames of
+    planted feet it is solved frame by frame; depth 0 puts the pelvis as high as the legs allow."""
+    back = _other(side)
+    keys = np.array(_LUNGE_KEYS)
+    t = _time(keys[-1]) if t is None else t
+    n = len(t)
+    legs = _standing_legs(t)
+    f, b = legs[side], legs[back]
+    step = _keys(t, keys, [0, 0, 0, 1, 1, 1, 1, 0, 0, 0])  # front foot: 0 home .. 1 forward
+    f.ball = f.ball + np.stack([length * step, 0 * t, _LUNGE_ARC * np.sin(np.pi * step)], -1)
+    f.grounded = (step <= 0) | (step >= 1)
+    f.toe_flat = np.where(f.grounded, 1.0, 0.5)
+    sink = _keys(t, keys, [0, 0, 0, 0, 1, 1, 0, 0, 0, 0])  # 0 upright .. 1 at the bottom
+    b.foot_pitch = _LUNGE_HEEL * sink
+    # Weight share of the front foot: off it for the step, caught at 45 %, then half and half.
+    w_front = _keys(t, keys, [0.5, 0.5, 0.03, 0.45, 0.5, 0.5, 0.45, 0.03, 0.5, 0.5])
+    # The pelvis tips back a little as it sinks, so the back hip need not extend past its range.
+    pelvis_pitch = 4 * DEG - 10 * DEG * sink
+    angles = _upright_spine(t, pelvis_pitch, lean=2 * DEG)
+    arms = {s: _arm(t, s, 5 * DEG, 12 * DEG, 20 * DEG) for s in SIDES}
+    spec = _Spec(t, np.zeros((n, 3)), _rot(0 * t, pelvis_pitch), legs, arms, angles, swing_knee=8 * DEG)
+    spec.pelvis_pos[:, 0] = 0.5 * length * step  # start near the answer
+    toe_box = np.asarray(SKELETON.geoms[B[f"{back}_Toe"]].pos) * [1.0, 1.0, 0.0]
+    back_centre = FOOT_CENTRE[back] + (b.foot_pitch / _LUNGE_HEEL)[:, None] * (toe_box - FOOT_CENTRE[back])
+    back_support = b.ball + quat_apply(yaw_quat(b.foot_yaw), back_centre)
+    front_support = _support_point(spec, 1.0 if side == "L" else 0.0)
+    target = (w_front[:, None] * front_support + (1 - w_front[:, None]) * back_support)[:, :2]
+    planted = f.grounded
+    windows = [(int(round(a * FPS)), int(round(c * FPS))) for a, c in _LUNGE_STEPS]
+    for _ in range(5):
+        _lunge_height(spec, side, back, sink, depth)
+        com = _centre_of_mass(spec.pelvis_pos, _solve(spec))[:, :2]
+        spec.pelvis_pos[planted, :2] += (target - com)[planted]
+        for i0, i1 in windows:  # in the air: carried from one balanced pose to the next
+            if i1 < n and not planted[i0 + 1 : i1].all():
+                s = _minjerk((t[i0:i1 + 1] - t[i0]) / (t[i1] - t[i0]))[:, None]
+                spec.pelvis_pos[i0:i1 + 1, :2] = spec.pelvis_pos[i0, :2] + s * (spec.pelvis_pos[i1, :2] - spec.pelvis_pos[i0, :2])
+    _lunge_height(spec, side, back, sink, depth)
+    return spec
+
+
+def _lunge_height(spec: _Spec, side: str, back: str, sink, depth: float) -> None:
+    """Pelvis height: standing height less `depth` times the sink, never higher than the legs
+    reach their targets (the swinging foot's too, so it lands without the knee snapping); where
+    the straddle alone brings it lower it follows that, rounded off."""
+    reach = np.minimum(_max_pelvis_height(spec, side), _max_pelvis_height(spec, back)) - 0.02
+    stand = reach[0]
+    z = np.minimum(stand - depth * sink, reach)
+    spec.pelvis_pos[:, 2] = _smooth_below(z) if len(z) > 5 else z

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from smpl_envs.humanoid.kinematics import forward_kinematics
-from smpl_envs.humanoid.skeleton import BODY_NAMES, MEAN_SKELETON
+from smpl_envs.humanoid.skeleton import BODY_NAMES, HINGE_NAMES, MEAN_SKELETON
 from smpl_envs.motion import whole_body as wb
 from smpl_envs.motion.kinematics import hinge_angles
 from smpl_envs.motion.motion import FPS
@@ -66,7 +66,8 @@ def test_kick_reach_range_bounds_the_knee():
     for side, height in (("R", 0.2), ("L", 0.9)):
         for where, knee in (("short", 80), ("long", 10)):
             _, raw = kick(side, height, where)
-            flex = np.degrees(hinge_angles(raw.local_quat)[int(1.7 * FPS), 3 * (BODY_NAMES.index(f"{side}_Knee") - 1) + 1])
+            knee_y = HINGE_NAMES.index(f"{side}_Knee_y")
+            flex = np.degrees(hinge_angles(raw.local_quat)[int(1.7 * FPS), knee_y])
             assert flex == pytest.approx(knee, abs=3)
 
 
@@ -144,7 +145,8 @@ def test_jump(flight, distance, direction, count):
     report = assert_clip_basics(raw, allow_flight=True)
     assert len(report.flight_phases) == count
     travelled = raw.root_pos[-1, :2] - raw.root_pos[0, :2]
-    np.testing.assert_allclose(travelled, count * distance * np.array([np.cos(direction), np.sin(direction)]), atol=0.01)
+    u = np.array([np.cos(direction), np.sin(direction)])
+    np.testing.assert_allclose(travelled, count * distance * u, atol=0.01)
     z = raw.root_pos[:, 2]
     for k in range(count):
         take_off = int(round((0.5 + 0.9 + 2.6 * k) * FPS))

@@ -213,8 +213,9 @@ def _kick_spec(side: str, lift: float, reach, tempo: float, t=None) -> _Spec:
     # raising the thigh higher than the shipped one move in the hip's sagittal plane: the ankle straight in front
     # of the hip (offset as in the rest pose) instead of ahead of where the foot stood, the foot
     # (whose yaw sets the knee's hinge axis) not turned out.
-    raised = np.maximum(*(_kick_thigh_elevation(f * lift, g * reach) - _kick_thigh_elevation(f * _KICK_LIFT, g * _KICK_REACH)
-                          for f, g in ((1.0, 1.0), (chamber_up, chamber_fwd))))  # at extension and chamber
+    raised = np.maximum(*(  # thigh higher than the shipped kick's, at extension and at the chamber
+        _kick_thigh_elevation(f * lift, g * reach) - _kick_thigh_elevation(f * _KICK_LIFT, g * _KICK_REACH)
+        for f, g in ((1.0, 1.0), (chamber_up, chamber_fwd))))
     # Exactly full from half the chamber's height up, where the hip may pass 90 deg of flexion.
     aim = _minjerk(raised / (10 * DEG)) * _minjerk(up / (0.5 * chamber_up * lift))
     stand_y = k.ball[:, 1].copy()
@@ -353,17 +354,8 @@ def jump(flight: float = 0.4, distance: float = 0.3, direction: float = 0.0, cou
     t = _time(_JUMP_LEAD + count * _JUMP_CYCLE + _JUMP_TAIL)
     legs = _standing_legs(t)
     n = len(t)
-    u = np.array([np.cos(direction), np.sin(direction)])
-    travel = distance * u
-    speed = distance / flight
-    if speed > _JUMP_LEAD_SPEED:  # solve |v| flight = distance - 2 lead(|v|)
-        speed = (distance + 2 * _JUMP_LEAD_GAIN * _JUMP_LEAD_SPEED) / (flight + 2 * _JUMP_LEAD_GAIN)
-    lead = _JUMP_LEAD_GAIN * max(speed - _JUMP_LEAD_SPEED, 0.0) * u
-    hips = np.array([_JUMP_HIPS, 0.0])
-    at_off, at_land = hips + lead, hips - lead  # pelvis xy relative to the stance
-    v_xy = (travel + at_land - at_off) / flight
-    vz = GRAVITY * flight / 2  # take-off and landing at the same height
-    scale = flight / _JUMP_REF_FLIGHT
+    travel = distance * np.array([np.cos(direction), np.sin(direction)])
+    at_off, at_land, v_xy = _jump_hips(flight, travel)
     starts = _JUMP_LEAD + _JUMP_CYCLE * np.arange(count)  # start of each dip
     t_off = starts + _JUMP_OFF
     t_land = t_off + flight
@@ -401,10 +393,37 @@ def jump(flight: float = 0.4, distance: float = 0.3, direction: float = 0.0, cou
     flex = np.deg2rad(3 + posture([0, 0, -48, 107, 57, 37, 0, 0])) - lean
     spec.arms = {side: _arm(t, side, flex, 12 * DEG, 25 * DEG) for side in SIDES}
 
-    # Where the legs allow the pelvis at take-off (heels up, knees nearly straight); the landing
-    # pose mirrors it, so take-off and landing heights are equal and the flight is symmetric.
     for leg in legs.values():
         leg.ball = leg.ball + np.concatenate([stance, np.zeros((n, 1))], -1)
+    _jump_flights(spec, flight, starts, t_off, t_land, air, at_off - at_land)
+    return _clip(name, spec, _solve(spec))
+
+
+def _jump_hips(flight: float, travel: np.ndarray):
+    """Pelvis xy relative to the stance at take-off and at landing, and its velocity in the air.
+
+    Up to _JUMP_LEAD_SPEED the hips are at _JUMP_HIPS both times; faster, they lead the feet at
+    take-off and trail them at landing by _JUMP_LEAD_GAIN s times the excess speed, which
+    itself depends on the lead: |v| flight = distance - 2 lead(|v|)."""
+    distance = float(np.linalg.norm(travel))
+    speed = distance / flight
+    if speed > _JUMP_LEAD_SPEED:
+        speed = (distance + 2 * _JUMP_LEAD_GAIN * _JUMP_LEAD_SPEED) / (flight + 2 * _JUMP_LEAD_GAIN)
+    lead = _JUMP_LEAD_GAIN * max(speed - _JUMP_LEAD_SPEED, 0.0) * travel / max(distance, 1e-12)
+    hips = np.array([_JUMP_HIPS, 0.0])
+    at_off, at_land = hips + lead, hips - lead
+    return at_off, at_land, (travel + at_land - at_off) / flight
+
+
+def _jump_flights(spec: _Spec, flight: float, starts, t_off, t_land, air, swing) -> None:
+    """Pelvis height through every jump and the feet in the air (`swing`: how far the feet move
+    forward relative to the hips during a flight)."""
+    t, legs, pos = spec.t, spec.legs, spec.pelvis_pos
+    n = len(t)
+    vz = GRAVITY * flight / 2  # take-off and landing at the same height
+    scale = flight / _JUMP_REF_FLIGHT
+    # Where the legs allow the pelvis at take-off (heels up, knees nearly straight); the landing
+    # pose mirrors it, so take-off and landing heights are equal and the flight is symmetric.
     zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
     z_stand = np.min(zmax[: int(_JUMP_LEAD * FPS)]) - 0.005
     z = np.full(n, z_stand)
@@ -427,7 +446,7 @@ def jump(flight: float = 0.4, distance: float = 0.3, direction: float = 0.0, cou
         tuck = 0.12 * np.sin(np.pi * frac) ** 2
         for side, leg in legs.items():
             off = leg.ball[i_off] - [*pos[i_off, :2], z_off]
-            land = off + np.append(at_off - at_land, 0.0)
+            land = off + np.append(swing, 0.0)
             rel[side][in_flight] = (off + _minjerk(frac)[:, None] * (land - off)
                                     + np.stack([0 * t, 0 * t, tuck], -1))[in_flight]
     spec.pelvis_pos[:, 2] = z
@@ -436,7 +455,6 @@ def jump(flight: float = 0.4, distance: float = 0.3, direction: float = 0.0, cou
     # Never ask a leg for more than it reaches (grounded frames only; the flight is fixed).
     zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
     spec.pelvis_pos[:, 2] = np.where(air, z, np.minimum(z, zmax - 0.005))
-    return _clip(name, spec, _solve(spec))
 
 
 # ----------------------------------------------------------------------------- hop
@@ -645,8 +663,9 @@ def _lunge_spec(side: str, length: float, depth: float, t=None) -> _Spec:
         spec.pelvis_pos[planted, :2] += (target - com)[planted]
         for i0, i1 in windows:  # in the air: carried from one balanced pose to the next
             if i1 < n and not planted[i0 + 1 : i1].all():
+                a, c = spec.pelvis_pos[i0, :2].copy(), spec.pelvis_pos[i1, :2].copy()
                 s = _minjerk((t[i0:i1 + 1] - t[i0]) / (t[i1] - t[i0]))[:, None]
-                spec.pelvis_pos[i0:i1 + 1, :2] = spec.pelvis_pos[i0, :2] + s * (spec.pelvis_pos[i1, :2] - spec.pelvis_pos[i0, :2])
+                spec.pelvis_pos[i0:i1 + 1, :2] = a + s * (c - a)
     _lunge_height(spec, side, back, sink, depth)
     return spec
 

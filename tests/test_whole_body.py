@@ -158,7 +158,8 @@ def test_jump(flight, distance, direction, count):
 
 
 HOPS = [("L", 1, 0.15, 0.0, 0.0), ("R", 1, 0.3, 0.4, 0.0), ("L", 4, 0.3, 0.0, 0.0), ("R", 4, 0.15, 0.4, PI / 2),
-        ("L", 3, 0.22, 0.2, PI), ("R", 2, 0.3, 0.4, -2.5), ("L", 4, 0.15, 0.4, 2.0)]
+        ("L", 3, 0.22, 0.2, PI), ("R", 2, 0.3, 0.4, -2.5), ("L", 4, 0.15, 0.4, 2.0),
+        ("L", 3, 0.1834, 0.2231, -3.065)]  # take-offs between frames: the foot once dipped 1 cm
 
 
 @pytest.mark.parametrize("side, count, flight, distance, direction", HOPS)
@@ -211,3 +212,33 @@ def test_ranges_are_stated_for_every_numeric_parameter():
 def test_deterministic():
     a, b = wb.hop("R", 2, 0.2, 0.3, 0.5), wb.hop("R", 2, 0.2, 0.3, 0.5)
     assert np.array_equal(a.root_pos, b.root_pos) and np.array_equal(a.local_quat, b.local_quat)
+
+
+def random_members(seed: int = 7, per_family: int = 4):
+    """A few members drawn uniformly from each family's ranges (the grid above has corners and
+    middles; a corpus samples the interior)."""
+    rng = np.random.default_rng(seed)
+    draw = lambda family, name: float(rng.uniform(*wb.RANGES[family][name]))  # noqa: E731
+    members = []
+    for _ in range(per_family):
+        side = str(rng.choice(["L", "R"]))
+        height, tempo = draw("kick", "height"), draw("kick", "tempo")
+        reach = float(rng.uniform(*wb.kick_reach_range(height, side, tempo)))
+        members.append((wb.kick, dict(side=side, height=height, reach=reach, tempo=tempo), False))
+        members.append((wb.squat, {k: draw("squat", k) for k in wb.RANGES["squat"]}, False))
+        members.append((wb.lunge, dict(side=side, length=draw("lunge", "length"), depth=draw("lunge", "depth")), False))
+        for family in (wb.jump, wb.hop):
+            ranges = wb.RANGES[family.__name__]
+            kwargs = {k: draw(family.__name__, k) for k in ranges if k != "count"}
+            kwargs["count"] = int(rng.integers(ranges["count"][0], ranges["count"][1] + 1))
+            members.append((family, kwargs, True))
+    return members
+
+
+@pytest.mark.parametrize("family, kwargs, allow_flight", random_members(),
+                         ids=lambda v: getattr(v, "__name__", None) if callable(v) else "")
+def test_random_members_are_plausible(family, kwargs, allow_flight):
+    raw = family(**kwargs)
+    report = assert_clip_basics(raw, allow_flight)
+    if allow_flight:
+        assert len(report.flight_phases) == kwargs["count"]

@@ -217,7 +217,7 @@ def _kick_spec(side: str, lift: float, reach, tempo: float, t=None) -> _Spec:
         _kick_thigh_elevation(f * lift, g * reach) - _kick_thigh_elevation(f * _KICK_LIFT, g * _KICK_REACH)
         for f, g in ((1.0, 1.0), (chamber_up, chamber_fwd))))
     # Exactly full from half the chamber's height up, where the hip may pass 90 deg of flexion.
-    aim = _minjerk(raised / (10 * DEG)) * _minjerk(up / (0.5 * chamber_up * lift))
+    aim = _minjerk(raised / (3 * DEG)) * _minjerk(up / (0.5 * chamber_up * lift))
     stand_y = k.ball[:, 1].copy()
     k.foot_yaw = k.foot_yaw * (1 - aim)  # the knee bends in that plane too: no toe-out
     leg_y = OFFSETS[B[f"{side}_Knee"], 1] + OFFSETS[B[f"{side}_Ankle"], 1]  # kept by hip flexion
@@ -560,6 +560,7 @@ def hop(side: str = "L", count: int = 2, flight: float = 0.25, distance: float =
         smooth = np.minimum(np.convolve(np.pad(z_still, 3, mode="edge"), np.ones(7) / 7, "valid"),
                             np.minimum(zh, np.where(f.grounded, zf, np.inf)) - 0.005)
         spec.pelvis_pos[:, 2] = np.where((t < t_dip + 1e-6) | (t > t_still - 1e-6), smooth, z)
+        return z_off
 
     # With the heel up only the toe box bears weight: the body leans on over it (the whole body
     # but the foot moves, so the pelvis shifts about as far as the centre of mass has to).
@@ -576,13 +577,13 @@ def hop(side: str = "L", count: int = 2, flight: float = 0.25, distance: float =
         spec.pelvis_pos[~still, :2] = (home[:, :2] + offset + on_ball[:, None] * to_ball
                                        + travel[:, None] * u[:2])[~still]
     hold_free_foot()
-    place_height()
+    z_off = place_height()
     # The hopping foot in the air: below the hips as at take-off, swinging forward to where it
     # lands, drawn up a little at the apex.
     for a, b in zip(t_offs, t_lands):
         frac = np.clip((t - a) / flight, 0.0, 1.0)
         swing = (travel - half + 2 * half * _minjerk(frac))[:, None] * u
-        lift = spec.pelvis_pos[:, 2] - spec.pelvis_pos[int(round(a * FPS)), 2] + _HOP_TUCK * np.sin(np.pi * frac) ** 2
+        lift = spec.pelvis_pos[:, 2] - z_off + _HOP_TUCK * np.sin(np.pi * frac) ** 2
         in_air = home + swing + lift[:, None] * [0.0, 0.0, 1.0]
         mine = (t > a + 1e-6) & (t < b - 1e-6)
         h.ball[mine] = in_air[mine]

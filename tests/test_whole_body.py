@@ -235,8 +235,11 @@ def random_members(seed: int = 7, per_family: int = 4):
     return members
 
 
-@pytest.mark.parametrize("family, kwargs, allow_flight", random_members(),
-                         ids=lambda v: getattr(v, "__name__", None) if callable(v) else "")
+RANDOM = random_members()
+
+
+@pytest.mark.parametrize("family, kwargs, allow_flight", RANDOM,
+                         ids=[f"{family.__name__}-{i}" for i, (family, _, _) in enumerate(RANDOM)])
 def test_random_members_are_plausible(family, kwargs, allow_flight):
     raw = family(**kwargs)
     report = assert_clip_basics(raw, allow_flight)

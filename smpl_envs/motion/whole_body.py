@@ -87,8 +87,8 @@ def _clip(name: str, spec: _Spec, local: np.ndarray) -> RawMotion:
 # The shipped kick, the reference the family scales from: toe joint 0.50 m above its standing
 # height and 0.70 m ahead at full extension.
 _KICK_LIFT, _KICK_REACH = 0.50, 0.70
-# Nominal hip of the kicking leg at extension relative to the standing toe joint (back, up): only
-# used to tilt the foot with the leg's elevation.
+# Nominal hip of the kicking leg at extension relative to the standing toe joint (back, up): for
+# rough angles only (the foot's tilt with the leg, how high the thigh goes, a first guess).
 _KICK_HIP = (-0.05, 0.80)
 # Straightest and most bent knee at full extension: a locked knee cannot snap, and beyond 80 deg
 # the "kick" is a knee raise.
@@ -102,8 +102,9 @@ def _kick_elevation(lift, reach):
 
 
 def _kick_thigh_elevation(lift, reach):
-    """Rough angle of the thigh above the horizontal at full extension, from the (nominal) hip to
-    toe-joint line and the knee bend the distance asks for (thigh 0.38 m, shank and foot 0.53 m)."""
+    """Rough angle of the thigh above the horizontal with the toe joint at (reach, lift): the
+    (nominal) hip to toe-joint line plus the knee bend the distance asks for (thigh 0.38 m, shank
+    and foot 0.53 m)."""
     thigh, shank = 0.38, 0.53
     dist = np.hypot(lift - _KICK_HIP[1], reach - _KICK_HIP[0])
     opening = np.arccos(np.clip((thigh ** 2 + dist ** 2 - shank ** 2) / (2 * thigh * dist), -1.0, 1.0))

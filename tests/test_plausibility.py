@@ -167,3 +167,17 @@ def test_a_body_moving_too_fast():
     root = raw.root_pos.copy()
     root[60:] += [0.5, 0.0, 0.0]  # a 0.5 m teleport: 15 m/s
     assert "smoothness" in check_motion(edited(raw, root)).failed
+
+
+def test_a_hip_passing_gimbal_lock_flips_the_hinge_decomposition():
+    # The left thigh swings up through 90 deg of flexion turned 5 deg sideways: every local
+    # rotation changes smoothly, but the x-y-z hinge angles the humanoid is driven with flip.
+    raw = shipped("stand")
+    flexion = np.deg2rad(np.linspace(-60.0, -120.0, raw.num_frames))
+    sideways = np.array([np.cos(np.deg2rad(2.5)), 0.0, 0.0, np.sin(np.deg2rad(2.5))])
+    local = raw.local_quat.copy()
+    local[:, BODY_NAMES.index("L_Hip")] = quat_mul(sideways, np.stack(
+        [np.cos(flexion / 2), 0 * flexion, np.sin(flexion / 2), 0 * flexion], -1))
+    report = check_motion(edited(raw, local_quat=local))
+    assert "smoothness" in report.failed
+    assert np.degrees(report.max_joint_step) < 5 and np.degrees(report.max_hinge_step) > 90

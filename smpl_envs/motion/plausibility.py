@@ -27,7 +27,9 @@ readable list of violations. The tolerances are module constants:
   inertia shifts the centre of pressure by at most ~3 cm) the centre of mass projects inside the
   convex hull of the contacting support points expanded by SUPPORT_MARGIN (2 cm).
 * **Smoothness**: no local rotation changes by more than MAX_JOINT_STEP (45 degrees) between
-  frames at 30 fps and no body moves faster than MAX_BODY_SPEED (12 m/s).
+  frames at 30 fps, nor does any hinge angle the humanoid is driven with (a joint passing close
+  to gimbal lock with some rotation about the missing axis makes the x-y-z decomposition flip),
+  and no body moves faster than MAX_BODY_SPEED (12 m/s).
 
 The clip is checked where it is (not grounded first: a clip sunk into the floor must fail) and
 resampled to 30 fps, as `Motion.from_raw` does, so per-frame figures mean the same for every clip.
@@ -127,6 +129,7 @@ class PlausibilityReport:
     quasi_static: np.ndarray  # (T,) bool, frames where static balance is checked
     support_margin: float  # m, min over quasi-static frames of the CoM's distance inside the support
     max_joint_step: float  # rad, largest change of a local rotation between frames
+    max_hinge_step: float  # rad, largest change of a hinge angle (as Motion.dof_pos) between frames
     max_body_speed: float  # m/s
     violations: list[str] = field(default_factory=list)
 
@@ -178,7 +181,8 @@ def check_motion(raw: RawMotion, skeleton: Skeleton = MEAN_SKELETON, allow_fligh
         violations.append(f"flight: not ballistic, pelvis z'' off -g by up to {acc_err:.2f} m/s^2, "
                           f"|xy''| up to {acc_xy:.2f} m/s^2")
 
-    excess, worst, distance = _limit_excess(raw.local_quat)
+    dof = unwrap(hinge_angles(raw.local_quat), Segments.from_lengths([n]))  # as Motion.dof_pos
+    excess, worst, distance = _limit_excess(raw.local_quat, dof)
     if distance > LIMIT_MARGIN:
         violations.append(f"joint range: a joint is {np.degrees(distance):.1f} deg (rotation) from its "
                           f"anatomical range ({worst} {np.degrees(excess):.1f} deg beyond)")
@@ -195,12 +199,18 @@ def check_motion(raw: RawMotion, skeleton: Skeleton = MEAN_SKELETON, allow_fligh
         f, b = np.unravel_index(step.argmax(), step.shape)
         violations.append(f"smoothness: {BODY_NAMES[b]} turns {np.degrees(step.max()):.0f} deg "
                           f"between frames {f} and {f + 1}")
+    hinge_step = np.abs(np.diff(dof, axis=0)).max(axis=0) if n > 1 else np.zeros(dof.shape[1])
+    if hinge_step.max() > MAX_JOINT_STEP:
+        violations.append(f"smoothness: hinge {HINGE_NAMES[hinge_step.argmax()]} jumps "
+                          f"{np.degrees(hinge_step.max()):.0f} deg between frames (its x-y-z "
+                          f"decomposition flips near gimbal lock)")
     if speed.max() > MAX_BODY_SPEED:
         violations.append(f"smoothness: a body moves at {speed.max():.1f} m/s")
 
     return PlausibilityReport(
         raw.name, n, float(low.min()), flight, phases, slide_mean, slide_max, acc_err, acc_xy,
-        excess, worst, distance, quasi, margin, float(step.max()), float(speed.max()), violations)
+        excess, worst, distance, quasi, margin, float(step.max()), float(hinge_step.max()),
+        float(speed.max()), violations)
 
 
 def _foot_slide(points, touching, fps):
@@ -227,12 +237,12 @@ def _flight_accelerations(root_pos, flight, fps):
     return float(np.abs(acc[:, 2] + GRAVITY).max()), float(np.linalg.norm(acc[:, :2], axis=-1).max())
 
 
-def _limit_excess(local_quat):
-    """How far the pose leaves the anatomical ranges: the largest hinge excursion beyond its range
-    (rad) as the pipeline decomposes the rotations, its hinge, and the largest rotation angle
-    (rad) between a joint's local rotation and the nearest one its hinges reach within range."""
+def _limit_excess(local_quat, dof):
+    """How far the pose leaves the anatomical ranges: the largest excursion of a hinge angle `dof`
+    (T, 69) beyond its range (rad), its hinge, and the largest rotation angle (rad) between a
+    joint's local rotation and the nearest one its hinges reach within range."""
     t = len(local_quat)
-    dof = unwrap(hinge_angles(local_quat), Segments.from_lengths([t])).reshape(t, -1, 3)
+    dof = dof.reshape(t, -1, 3)
     lo, hi = anatomical_limits().reshape(-1, 3, 2).transpose(2, 0, 1)  # (23, 3) each
     excess = np.maximum(lo - dof, dof - hi)  # (T, 23, 3)
     worst = int(excess.max(axis=0).argmax())
@@ -242,7 +252,7 @@ def _limit_excess(local_quat):
     return float(excess.reshape(t, -1)[:, worst].max()), HINGE_NAMES[worst], float(distance.max())
 
 
-def _distance_to_range(quat, angles, lo, hi, iterations: int = 12):
+def _distance_to_range(quat, angles, lo, hi, iterations: int = 60):
     """Rotation angle (N,) from each rotation (N, 4) to the nearest intrinsic x-y-z hinge setting
     within [lo, hi] (N, 3), by projected damped Gauss-Newton from its decomposition `angles`.
 
@@ -263,7 +273,9 @@ def _distance_to_range(quat, angles, lo, hi, iterations: int = 12):
         # that is how the twin axis takes over near gimbal lock.
         held = ((e <= lo) & (step < 0)) | ((e >= hi) & (step > 0))
         step = _damped_step(jac * ~held[:, None, :], r)
-        e = np.clip(e + step, lo, hi)
+        e, e_old = np.clip(e + step, lo, hi), e
+        if np.abs(e - e_old).max() < 1e-6:  # converged (slowly only near gimbal lock)
+            break
     return np.linalg.norm(quat_to_rotvec(quat_mul(quat, quat_inv(quat_from_euler_xyz(e)))), axis=-1)
 
 

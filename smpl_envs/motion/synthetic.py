@@ -17,6 +17,9 @@ phases (run, jump) follow the ballistic parabola z'' = -g and join the stance ph
 velocity, and the quasi-static clips (stand, gesture, crouch, kick) shift the pelvis so that the
 whole-body centre of mass stays over the support foot / feet.
 
+The kick, crouch and jump are members of the parametrised families of
+`smpl_envs.motion.whole_body`, which builds on this module's machinery.
+
 Every clip is deterministic (no randomness at all). Run `python -m smpl_envs.motion.synthetic
 [out_dir]` to rewrite the shipped clips; tests/test_synthetic_clips.py checks that regenerating
 reproduces them.
@@ -30,7 +33,7 @@ elbow flexes about -z, the right about +z.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -625,133 +628,28 @@ def _gesture() -> RawMotion:
     return _raw("gesture", spec, _balanced(spec, 0.5, drop=0.004))
 
 
+# ----------------------------------------------------------------------------- members of whole_body's families
+# (imported here, not at the top: whole_body builds on this module)
+
 def _crouch() -> RawMotion:
-    t = _time(5.0)
-    legs = _standing_legs(t, width=0.12, toe_out=12 * DEG)
-    keys = [0.0, 0.6, 1.9, 2.5, 3.9, 5.0]
-    depth = _keys(t, keys, [0, 0, 1, 1, 0, 0])  # 0 standing .. 1 bottom of the squat
-    pelvis_pitch = 4 * DEG + 20 * DEG * depth
-    lean = 1 * DEG + 30 * DEG * depth
-    angles = _upright_spine(t, pelvis_pitch, lean=lean)
-    angles[:, B["Neck"], 1] += 15 * DEG * depth  # keep looking ahead, not at the ceiling
-    # Arms come forward to shoulder height as a counterweight (world flex minus chest lean).
-    flex = 3 * DEG + 80 * DEG * depth
-    arms = {side: _arm(t, side, flex - lean, 10 * DEG, 15 * DEG) for side in SIDES}
-    spec = _Spec(t, np.zeros((len(t), 3)), _rot(0 * t, pelvis_pitch), legs, arms, angles)
-    # Squat depth: 0.21 m of pelvis drop (knees ~85 deg); balance keeps the centre of mass over
-    # the middle of the feet.
-    return _raw("crouch", spec, _balanced(spec, 0.5, drop=0.008 + 0.21 * depth))
+    # Squat depth: 0.21 m of pelvis drop below the legs' reach in the squat posture (knees ~85 deg).
+    from .whole_body import _squat
+    return _shipped(_squat(bend=0.21, descent=1.3, hold=0.6, ascent=1.4, width=0.12, name="crouch"))
 
 
 def _kick() -> RawMotion:
-    t = _time(4.0)
-    legs = _standing_legs(t)
-    # Timeline: weight onto the left foot, chamber the right knee, snap the kick, re-chamber,
-    # put the foot back, weight back to both feet.
-    keys = [0.0, 0.5, 1.1, 1.45, 1.7, 2.0, 2.45, 3.1, 4.0]
-    weight_left = _keys(t, keys, [0.5, 0.5, 0.97, 0.97, 0.97, 0.97, 0.97, 0.5, 0.5])
-    # Kicking foot, toe-joint target relative to the standing position (forward, up).
-    fwd = _keys(t, keys, [0, 0, 0, 0.30, 0.70, 0.30, 0.0, 0.0, 0.0])
-    up = _keys(t, keys, [0, 0, 0, 0.24, 0.50, 0.24, 0.0, 0.0, 0.0])
-    # Foot world pitch: toes pointed down under the chambered knee; at full extension the shank is
-    # nearly horizontal and the ankle extended, so the sole faces forward (ball-of-foot strike).
-    pitch = _keys(t, keys, np.deg2rad([0, 0, 0, 20, -40, 20, 0, 0, 0]))
-    r = legs["R"]
-    r.ball = r.ball + np.stack([fwd, 0 * t, up], -1)
-    r.foot_pitch = pitch
-    r.toe_flat = 1 - _minjerk(up / 0.05)  # toes relax once the foot is off the floor
-    r.grounded = up < 1e-4
-    lean_back = _keys(t, keys, np.deg2rad([0, 0, 0, -6, -14, -6, 0, 0, 0]))
-    pelvis_pitch = 4 * DEG + lean_back
-    angles = _upright_spine(t, pelvis_pitch, lean=1 * DEG + 0.6 * lean_back)
-    # Arms: raised guard that counter-swings, the left arm forward and the right back at impact.
-    guard = _keys(t, keys, [0, 0, 0.6, 1, 1, 1, 0.6, 0, 0])
-    snap = _keys(t, keys, [0, 0, 0, 0.3, 1, 0.3, 0, 0, 0])
-    arms = {"L": _arm(t, "L", (5 + 25 * guard + 20 * snap) * DEG, (12 + 20 * guard) * DEG,
-                      (15 + 75 * guard) * DEG),
-            "R": _arm(t, "R", (5 + 15 * guard - 40 * snap) * DEG, (12 + 25 * guard) * DEG,
-                      (15 + 70 * guard - 30 * snap) * DEG)}
-    spec = _Spec(t, np.zeros((len(t), 3)), _rot(0 * t, pelvis_pitch), legs, arms, angles)
-    # Only the standing leg limits the height once the kicking foot is off the floor.
-    target = _support_point(spec, weight_left)[:, :2]
-    for _ in range(5):
-        zl, zr = _max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R")
-        spec.pelvis_pos[:, 2] = np.where(r.grounded, np.minimum(zl, zr), zl) - 0.02
-        local = _solve(spec)
-        spec.pelvis_pos[:, :2] += target - _centre_of_mass(spec.pelvis_pos, local)[:, :2]
-    # Smooth the switch of height limit at lift-off (tiny, but keeps the velocity continuous).
-    zl, zr = _max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R")
-    z = np.where(r.grounded, np.minimum(zl, zr), zl) - 0.02
-    spec.pelvis_pos[:, 2] = np.minimum(np.convolve(np.pad(z, 3, mode="edge"), np.ones(7) / 7, "valid"),
-                                       np.minimum(zl, np.where(r.grounded, zr, np.inf)) - 0.005)
-    return _raw("kick", spec, _solve(spec))
+    from .whole_body import kick
+    return _shipped(kick("R", height=0.5 + BALL_HEIGHT["R"], reach=0.70, tempo=1.0, name="kick"))
 
-
-# ----------------------------------------------------------------------------- jump
 
 def _jump() -> RawMotion:
-    """Countermovement jump 0.3 m forward: dip, drive up onto the balls of the feet, a ballistic
-    flight with slightly tucked legs, land on the balls, absorb, stand up."""
-    t = _time(3.6)
-    n = len(t)
-    legs = _standing_legs(t)
-    # Take-off and landing fall on frames, so both stance poses are sampled exactly.
-    t_dip, t_bottom, t_off = 0.5, 1.05, 1.4
-    flight, dist, heel = 0.4, 0.30, 32 * DEG
-    t_land = t_off + flight
-    vz = GRAVITY * flight / 2  # take-off and landing at the same height
-    vx = dist / flight
+    """Countermovement jump 0.3 m forward with 0.4 s of flight."""
+    from .whole_body import jump
+    return _shipped(jump(flight=0.4, distance=0.30, direction=0.0, count=1, name="jump"))
 
-    # Feet: heels rise before take-off and drop after landing; in the air the balls follow the
-    # pelvis with the legs tucked a little; the second stance is `dist` ahead.
-    pitch = _keys(t, [0, 1.15, t_off, t_land, t_land + 0.12, 3.6], [0, 0, heel, heel, 0, 0])
-    air = (t > t_off + 1e-6) & (t < t_land - 1e-6)
-    forward = np.clip((t - t_off) / flight, 0, 1) * dist
-    for leg in legs.values():
-        leg.foot_pitch = pitch
-        leg.grounded = ~air
 
-    # Pelvis x: back during the dip (hips sit back), then forward at vx through the flight.
-    x = _hermite(t, [0, t_dip, t_bottom, t_off, t_land, t_land + 0.35, 3.0, 3.6],
-                 [0, 0, -0.08, -0.02, -0.02 + dist, dist - 0.06, dist, dist],
-                 [0, 0, 0, vx, vx, 0, 0, 0])
-    pelvis_pitch = 4 * DEG + _hermite(t, [0, t_dip, t_bottom, t_off, t_land, t_land + 0.3, 3.1, 3.6],
-                                      np.deg2rad([0, 0, 18, 5, 8, 15, 0, 0]), [0] * 8)
-    lean = 1 * DEG + _hermite(t, [0, t_dip, t_bottom, t_off, t_land, t_land + 0.3, 3.1, 3.6],
-                              np.deg2rad([0, 0, 32, 4, 8, 24, 0, 0]), [0] * 8)
-    pos = np.zeros((n, 3))
-    pos[:, 0] = x
-    spec = _Spec(t, pos, _rot(0 * t, pelvis_pitch), legs, {}, _upright_spine(t, pelvis_pitch, lean=lean))
-    # Arms swing back in the dip and up through take-off, forward for the landing.
-    flex = np.deg2rad(_hermite(t, [0, t_dip, t_bottom, t_off, t_land, t_land + 0.3, 3.1, 3.6],
-                               [3, 3, -45, 110, 60, 40, 3, 3], [0] * 8)) - lean
-    spec.arms = {side: _arm(t, side, flex, 12 * DEG, 25 * DEG) for side in SIDES}
-
-    # Where the legs allow the pelvis at take-off (heels up, knees nearly straight); the landing
-    # pose mirrors it, so take-off and landing heights are equal and the flight is symmetric.
-    for leg in legs.values():
-        leg.ball = leg.ball + np.stack([forward, 0 * t, 0 * t], -1)
-    zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
-    i_off, i_land = int(round(t_off * FPS)), int(round(t_land * FPS))
-    z_off = min(zmax[i_off], zmax[min(i_land, n - 1)]) - 0.01
-    z_stand = np.min(zmax[: int(t_dip * FPS)]) - 0.005
-    z = _hermite(t, [0, t_dip, t_bottom, t_off], [z_stand, z_stand, z_stand - 0.2, z_off], [0, 0, 0, vz])
-    tau = t - t_off
-    z = np.where(t > t_off + 1e-6, z_off + vz * tau - 0.5 * GRAVITY * tau ** 2, z)
-    z_after = _hermite(t, [t_land, t_land + 0.3, 3.1, 3.6],
-                       [z_off, z_stand - 0.15, z_stand, z_stand], [-vz, 0, 0, 0])
-    z = np.where(t >= t_land - 1e-6, z_after, z)
-    spec.pelvis_pos[:, 2] = z
-    # In the air the balls hang below the hips, the legs tucked by up to 12 cm at the apex.
-    rel = {s: legs[s].ball[i_off] - [x[i_off], 0.0, z_off] for s in SIDES}
-    tuck = 0.12 * np.sin(np.pi * np.clip(tau / flight, 0, 1)) ** 2
-    for side, leg in legs.items():
-        in_air = spec.pelvis_pos + rel[side] + np.stack([0 * t, 0 * t, tuck], -1)
-        leg.ball = np.where(air[:, None], in_air, leg.ball)
-    # Never ask a leg for more than it reaches (grounded frames only; the flight is fixed).
-    zmax = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R"))
-    spec.pelvis_pos[:, 2] = np.where(air, z, np.minimum(z, zmax - 0.005))
-    return _raw("jump", spec, _solve(spec))
+def _shipped(raw: RawMotion) -> RawMotion:
+    return replace(raw, source="smpl_envs.motion.synthetic")
 
 
 _GENERATORS = {

@@ -175,6 +175,13 @@ class MotionLib:
         if not isinstance(cache, (bool, str, os.PathLike)):
             raise TypeError(f"cache must be True, False or a directory path, got {cache!r}")
         items = [source] if isinstance(source, (str, os.PathLike)) else list(source)
+        if any(_is_corpus_name(item) for item in items):
+            if len(items) != 1:
+                raise ValueError(f"a corpus name loads alone, not in a list with other motions: {items!r}")
+            lib = cls._load_corpus(items[0], skeleton, cache, progress)
+            if random_yaw:
+                lib.randomize_yaw(seed)
+            return lib
         paths = [resolve_clip(item) for item in items]
         if len(paths) == 1 and _is_library(paths[0]):
             lib = cls._read(paths[0], skeleton)
@@ -218,6 +225,34 @@ class MotionLib:
             warnings.warn(f"motion cache directory {folder} cannot be written ({e}); the tree "
                           "will be parsed again next time (set SMPL_ENVS_CACHE or pass cache= "
                           "to use another directory, cache=False to stop caching)", stacklevel=3)
+        return lib
+
+    @classmethod
+    def _load_corpus(cls, name: str, skeleton, cache, progress) -> "MotionLib":
+        """The procedural corpus (`smpl_envs.motion.corpus`) a name such as "corpus:train"
+        stands for: generated on first use and cached like a tree, its manifest (every clip's
+        parameters) written beside the cached library as JSON."""
+        from . import corpus  # the corpus builds on synthetic and plausibility: loaded on demand
+
+        spec, seed = corpus.parse_seed(name)
+        corpus.parse(spec)  # a bad name fails here, before anything is generated
+        if cache is False:
+            return cls(corpus.generate(spec, seed=seed, progress=progress)[0], skeleton)
+        folder = cache_dir() if cache is True else Path(cache).expanduser()
+        target = folder / f"corpus-{corpus.cache_key(spec, seed)}-{_skeleton_key(skeleton)[:12]}"
+        if target.exists():
+            try:
+                return cls._read(target, skeleton)
+            except Exception as e:  # a cache is never trusted: whatever is wrong, make it again
+                warnings.warn(f"motion cache entry {target} is damaged ({e}); rebuilding it", stacklevel=3)
+        raws, records = corpus.generate(spec, seed=seed, progress=progress)
+        lib = cls(raws, skeleton)
+        try:
+            lib.save(target)
+            corpus.write_manifest(target.with_suffix(".json"), spec, seed, records)
+        except OSError as e:
+            warnings.warn(f"motion cache directory {folder} cannot be written ({e}); the corpus "
+                          "will be generated again next time", stacklevel=3)
         return lib
 
     def save(self, path: str | os.PathLike) -> None:
@@ -522,6 +557,10 @@ def _motion_files(root: Path) -> list[Path]:
     if not files:
         raise FileNotFoundError(f"no .npz or .pkl motion files under {root}")
     return files
+
+
+def _is_corpus_name(item) -> bool:
+    return isinstance(item, str) and item.startswith("corpus:")
 
 
 def _is_library(path: Path) -> bool:

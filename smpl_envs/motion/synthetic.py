@@ -497,7 +497,10 @@ def _locomotion(name, duration, gait: _Gait, speed, yaw_rate=lambda t: 0 * t, tr
     yaw_osc = -act * gait.yaw_swing * np.cos(cyc)  # left hip forward (negative yaw) at left touchdown
     roll = act * gait.roll_swing * np.cos(mid_cyc)  # swing side (right) drops during left stance
     lean_in = -np.arctan(speed(t) * yaw_rate(t) / GRAVITY)  # bank into the curve
-    sway = act * gait.sway * np.cos(mid_cyc)
+    # Slow steps shift the weight fully onto the stance foot (its centre of mass must be over it
+    # for longer); at walking speeds from 1 m/s the gait's own small sway is enough.
+    slow = np.clip(1.0 - speed(t), 0.0, 1.0)
+    sway = act * (gait.sway + slow * max(gait.width - gait.sway, 0.0)) * np.cos(mid_cyc)
     pos = np.zeros((n, 3))
     pos[:, :2] = path_xy + sway[:, None] * np.stack([-np.sin(heading), np.cos(heading)], -1)
     quat = _rot(heading + yaw_osc, gait.pelvis_pitch, roll + lean_in)

@@ -37,7 +37,7 @@ from . import synthetic as syn
 from . import upper_body as ub
 from . import whole_body as wb
 
-CORPUS_VERSION = 1  # bump when any generator or range changes: it keys the cache
+CORPUS_VERSION = 1  # bump when a generator or a range changes: with the clip counts, it keys the cache
 DEFAULT_SEED = 0
 SPLITS = ("train", "test")
 MAX_TRIES = 20
@@ -399,9 +399,9 @@ class Family:
 
 
 FAMILIES: dict[str, Family] = {f.name: f for f in (
-    Family("walk", "locomotion", walk, 230, 40,
+    Family("walk", "locomotion", walk, 270, 40,
            {"speed": WALK_SPEED_BAND, "speed_b": WALK_SPEED_BAND, "yaw_rate": YAW_RATE_BAND}, "walks 0.3-2.2 m/s with speed changes, curves, starts and stops"),
-    Family("run", "locomotion", run, 110, 20, {"speed": RUN_SPEED_BAND}, "runs 2.0-4.5 m/s, speed changes, gentle curves"),
+    Family("run", "locomotion", run, 120, 20, {"speed": RUN_SPEED_BAND}, "runs 2.0-4.5 m/s, speed changes, gentle curves"),
     Family("turn_in_place", "locomotion", turn_in_place, 45, 8, {"yaw_rate": YAW_RATE_BAND},
            "stepping round on the spot, 45-270 deg at up to 90 deg/s"),
     Family("side_step", "locomotion", side_step, 40, 6, {"speed": (0.35, 0.42)}, "side steps 0.2-0.6 m/s"),
@@ -416,9 +416,9 @@ FAMILIES: dict[str, Family] = {f.name: f for f in (
     Family("kick", "whole_body", kick, 50, 8, {"height": KICK_HEIGHT_BAND}, "kicks of varied height, either leg"),
     Family("squat", "whole_body", squat, 45, 8, {"depth": SQUAT_DEPTH_BAND}, "squats and crouches of varied depth and speed"),
     Family("lunge", "whole_body", lunge, 30, 6, {"length": LUNGE_LENGTH_BAND}, "forward lunges"),
-    Family("jump", "whole_body", jump, 50, 8, {"distance": JUMP_DISTANCE_BAND}, "two-foot jumps, varied height, distance, direction"),
+    Family("jump", "whole_body", jump, 60, 8, {"distance": JUMP_DISTANCE_BAND}, "two-foot jumps, varied height, distance, direction"),
     Family("hop", "whole_body", hop, 30, 6, {"flight": HOP_FLIGHT_BAND}, "one-leg hops"),
-    Family("transition", "transitions", transition, 80, 16, {"speed": WALK_SPEED_BAND},
+    Family("transition", "transitions", transition, 100, 16, {"speed": WALK_SPEED_BAND},
            "walk, stop, reach / wave / turn, walk on"),
 )}
 GROUPS = tuple(dict.fromkeys(f.group for f in FAMILIES.values()))
@@ -512,7 +512,8 @@ def parse_seed(name: str) -> tuple[str, int]:
 
 def cache_key(spec: str, seed: int, scale: float = 1.0) -> str:
     split, families = parse(spec)
-    text = json.dumps([CORPUS_VERSION, int(seed), split, families, float(scale)])
+    counts = [(f, getattr(FAMILIES[f], split)) for f in families]
+    text = json.dumps([CORPUS_VERSION, int(seed), split, counts, float(scale)])
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 

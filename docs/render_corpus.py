@@ -1,5 +1,5 @@
 """Render the corpus figure: one tile per family of the procedural corpus, each showing
-(the most distinctive pose of its first training clip).
+(the pose of its first training clip farthest from its standing start).
 
     python docs/render_corpus.py          # writes docs/corpus.png
 """
@@ -27,15 +27,19 @@ def main(out: Path = HERE / "corpus.png", size=(300, 360)) -> None:
         for name in corpus.FAMILIES:
             raw, _ = corpus.make_clip(corpus.DEFAULT_SEED, "train", name, 0)
             m = Motion.from_raw(raw)
-            # The pose with the most going on: the frame farthest from the clip's mean pose.
-            spread = np.abs(m.dof_pos - m.dof_pos.mean(0)).sum(1)
+            # The pose with the most going on: the frame farthest from the clip's first (standing)
+            # pose, in hinge angles and pelvis height.
+            spread = np.abs(m.dof_pos - m.dof_pos[0]).sum(1) + 10 * np.abs(m.qpos[:, 2] - m.qpos[0, 2])
             data.qpos[:] = m.qpos[int(np.argmax(spread))]
             data.qpos[:2] = 0.0  # centred in the tracking camera
             mujoco.mj_forward(model, data)
             img = Image.fromarray(r.render(data)).resize(size)
             ImageDraw.Draw(img).text((8, 8), name, fill=(0, 0, 0))
             tiles.append(np.asarray(img))
-    write_strip(out, tiles, columns=6)
+    legend = Image.new("RGB", size, (255, 255, 255))
+    ImageDraw.Draw(legend).text((12, size[1] // 2 - 20), f"smpl-envs corpus\n{len(corpus.FAMILIES)} families\n"
+                                 "(docs/render_corpus.py)", fill=(0, 0, 0))
+    write_strip(out, tiles + [np.asarray(legend)], columns=6)
     print(out)
 
 

@@ -112,6 +112,7 @@ HOP_FLIGHT, HOP_FLIGHT_BAND, HOP_DISTANCE = (0.15, 0.3), (0.2, 0.22), (0.0, 0.4)
 # sequence "reach, then turn in place" before walking on.
 TRANSITION_ACTIONS = ("none", "reach", "wave", "turn")
 HELD_OUT_SEQUENCE = ("reach", "turn")
+TRANSITION_TURN_RATE = 1.0  # rad/s, turning on the spot during a stop
 
 
 # ----------------------------------------------------------------------------- locomotion
@@ -164,7 +165,6 @@ def walk(d: Draw) -> RawMotion:
     cruise = d.uniform("speed", 0.3, top)
     other = d.uniform("speed_b", 0.3, top)
     start_still, stop = d.coin("from_standing", 0.4), d.coin("to_stop", 0.4)
-    k_times = [0.0, 0.35 * duration, 0.7 * duration, duration]
     speeds = [0.0 if start_still else cruise, cruise, other, 0.0 if stop else other]
     acts = [0.0 if start_still else 1.0, 1.0, 1.0, 0.0 if stop else 1.0]
     # Standing ends last 0.6 s; speed ramps over ~1.5 s as gait starts.
@@ -177,7 +177,7 @@ def walk(d: Draw) -> RawMotion:
 
 
 def run(d: Draw) -> RawMotion:
-    """A run at 2.0-4.5 m/s, speeding up or slowing down by up to a quarter, gentle curves. The
+    """A run at 2.0-4.5 m/s, speeding up or slowing down by up to 15 %, gentle curves. The
     cadence stays at ~95 strides/min (runners lengthen their steps to go faster) and the ground
     contact shortens with speed."""
     duration = d.uniform("duration", 4.0, 8.0)
@@ -352,9 +352,10 @@ def transition(d: Draw) -> RawMotion:
             t += length
         elif a == "turn":
             angle = d.sign("turn_dir") * d.uniform("turn_angle", 45 * DEG, 180 * DEG)
-            turning = abs(angle) / (0.8 * 1.0)
-            yaw_keys += [(t + 0.3, 0.0), (t + 0.3 + 0.2 * turning, np.sign(angle) * 1.0),
-                         (t + 0.3 + 0.8 * turning, np.sign(angle) * 1.0), (t + 0.3 + turning, 0.0)]
+            turning = abs(angle) / (0.8 * TRANSITION_TURN_RATE)  # eased in and out over a fifth each
+            rate = np.sign(angle) * TRANSITION_TURN_RATE
+            yaw_keys += [(t + 0.3, 0.0), (t + 0.3 + 0.2 * turning, rate), (t + 0.3 + 0.8 * turning, rate),
+                         (t + 0.3 + turning, 0.0)]
             t += turning + 0.6
         else:
             t += d.uniform("pause", 0.5, 2.0)

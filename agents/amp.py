@@ -31,7 +31,8 @@ from torch.nn import functional as F
 
 from .networks import mlp
 from .normalizer import RunningNorm
-from .ppo import PPO, PPOConfig, adam, flush_subnormals_
+from .optim import adam, flush_subnormals_
+from .ppo import PPO, PPOConfig
 from .rollout import RolloutBuffer, RolloutHooks, minibatches
 from .vec import autoreset_mode, final_info_array
 

@@ -41,6 +41,7 @@ from smpl_envs.backend import MissingExtraError
 
 from .checkpoint import NO_SPACE, DiskFullError, clean_stale_temp_files, load_checkpoint, newest_readable_checkpoint
 from .plot import EmptyLogError, plot_run, read_progress
+from .policies import FORMER_HYPERPARAMS
 from .recipes import (LOCK_NAME, RecipeError, RunLock, apply_overrides, available_recipes, check_run_dir_free,
                       check_writable, find_checkpoint, in_use_message, is_unused_run_dir, live_run_pid,
                       load_recipe, make_run_dir, read_config, run_dir_of)
@@ -332,7 +333,7 @@ def _check_train_settings(recipe: dict) -> None:
 
 
 def _check_device(device: str, what: str) -> None:
-    from .ppo import resolve_device
+    from .on_policy import resolve_device
 
     try:
         resolve_device(device, name=what)
@@ -447,7 +448,8 @@ def _resume_agent(args, recipe: dict, checkpoint: Path, overrides: list[str]):
     prefix = "agent.hyperparams."
     names = {k[len(prefix):].split(".")[0] for k in (o.partition("=")[0].strip() for o in overrides)
              if k.startswith(prefix)}
-    changed = {name: recipe["agent"]["hyperparams"][name] for name in names}
+    # (The actor-critic's arguments are the checkpoint's: FIXED_ON_RESUME has compared them.)
+    changed = {name: recipe["agent"]["hyperparams"][name] for name in names if name not in FORMER_HYPERPARAMS}
     return agents.load(checkpoint, env="auto", device=recipe["train"]["device"],
                        n_envs=recipe["env"]["num_envs"], env_kwargs=recipe["env"]["kwargs"],
                        verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False,

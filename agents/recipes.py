@@ -28,6 +28,7 @@ from typing import Any, Iterable
 import yaml
 
 from . import AGENTS
+from .policies import FORMER_HYPERPARAMS
 
 try:
     import fcntl
@@ -272,7 +273,8 @@ def _check_agent(agent: dict) -> None:
         if key in RESERVED_HYPERPARAMS:
             raise RecipeError(f"agent.hyperparams.{key} is not a hyperparameter here: set it with "
                               f"{RESERVED_HYPERPARAMS[key]}")
-    accepted = accepted_hyperparams(AGENTS[name])
+    # The actor-critic's arguments, which the agents still take as hyperparameters (policies.py).
+    accepted = accepted_hyperparams(AGENTS[name]) | set(FORMER_HYPERPARAMS)
     unknown = sorted(set(hp) - accepted)
     if unknown:
         raise RecipeError(f"unknown {name} hyperparameter(s) {[f'agent.hyperparams.{k}' for k in unknown]}; "

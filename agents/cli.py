@@ -41,15 +41,13 @@ from smpl_envs.backend import MissingExtraError
 
 from .checkpoint import NO_SPACE, DiskFullError, clean_stale_temp_files, load_checkpoint, newest_readable_checkpoint
 from .plot import EmptyLogError, plot_run, read_progress
-from .policies import FORMER_HYPERPARAMS
 from .recipes import (LOCK_NAME, RecipeError, RunLock, apply_overrides, available_recipes, check_run_dir_free,
                       check_writable, find_checkpoint, in_use_message, is_unused_run_dir, live_run_pid,
                       load_recipe, make_run_dir, read_config, run_dir_of)
 
 # Settings a checkpoint fixes: its weights only fit these.
-FIXED_ON_RESUME = ("env.id", "agent.class") + tuple(
-    f"agent.hyperparams.{k}" for k in ("actor_hidden", "critic_hidden", "disc_hidden", "activation",
-                                       "disc_activation", "amp_num_frames"))
+FIXED_ON_RESUME = ("env.id", "agent.class", "agent.policy") + tuple(
+    f"agent.hyperparams.{k}" for k in ("disc_hidden", "disc_activation", "amp_num_frames"))
 INTERRUPTED = 130  # the shell's status for a SIGINT
 TERMINATED = 143   # and for a SIGTERM
 DISK_FULL = 74     # sysexits.h's EX_IOERR: a write failed, here for want of space
@@ -352,7 +350,7 @@ def _constructed(build, recipe: dict):
         raise
     except (ValueError, TypeError, RuntimeError, MissingExtraError) as e:
         raise RecipeError(f"cannot build {recipe['agent']['class']} on {recipe['env']['id']} with these settings "
-                          f"(check env.kwargs, agent.hyperparams and train.device): {e}") from None
+                          f"(check env.kwargs, agent.policy, agent.hyperparams and train.device): {e}") from None
 
 
 def _new_agent(args, recipe: dict):
@@ -363,7 +361,22 @@ def _new_agent(args, recipe: dict):
     return AGENTS[agent["class"]](
         env["id"], n_envs=env["num_envs"], env_kwargs=env["kwargs"], seed=train["seed"], device=train["device"],
         verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False, update_threads=args.update_threads,
+        policy=agent["policy"]["class"], policy_kwargs=_with_checkpoints_loaded(agent["policy"]["kwargs"]),
         **agent["hyperparams"])
+
+
+def _with_checkpoints_loaded(value):
+    """`value` (policy kwargs) with each `{checkpoint: NAME_OR_PATH}` replaced by that
+    checkpoint's policy, loaded and frozen."""
+    from .policies import load_policy
+
+    if isinstance(value, dict):
+        if set(value) == {"checkpoint"}:
+            return load_policy(find_checkpoint(value["checkpoint"]))
+        return {k: _with_checkpoints_loaded(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_with_checkpoints_loaded(v) for v in value]
+    return value
 
 
 def _attach_logger(agent, run: Path, resume_step: int | None = None) -> None:
@@ -403,8 +416,8 @@ def _resume_recipe(args) -> tuple[dict, Path, list[str]]:
     # command line with --resume added); changing them is not.
     for key in FIXED_ON_RESUME:
         if _get_dotted(recipe, key) != _get_dotted(apply_overrides(stored), key):
-            raise RecipeError(f"--set {key}: a resumed run keeps the env id, agent class and network sizes "
-                              "of its checkpoint")
+            raise RecipeError(f"--set {key}: a resumed run keeps the env id, agent class and policy (its class and "
+                              "arguments, the network sizes) of its checkpoint")
     # So does what the policy's actions and observations mean (smpl_envs.policy_settings).
     from smpl_envs.policy_settings import contradictions
 
@@ -448,8 +461,10 @@ def _resume_agent(args, recipe: dict, checkpoint: Path, overrides: list[str]):
     prefix = "agent.hyperparams."
     names = {k[len(prefix):].split(".")[0] for k in (o.partition("=")[0].strip() for o in overrides)
              if k.startswith(prefix)}
-    # (The actor-critic's arguments are the checkpoint's: FIXED_ON_RESUME has compared them.)
-    changed = {name: recipe["agent"]["hyperparams"][name] for name in names if name not in FORMER_HYPERPARAMS}
+    # (The policy's arguments, which the checkpoint fixes, the recipe has moved to agent.policy;
+    # a repeated value of one is no change: FIXED_ON_RESUME.)
+    hp = recipe["agent"]["hyperparams"]
+    changed = {name: hp[name] for name in names if name in hp}
     return agents.load(checkpoint, env="auto", device=recipe["train"]["device"],
                        n_envs=recipe["env"]["num_envs"], env_kwargs=recipe["env"]["kwargs"],
                        verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False,

@@ -98,7 +98,8 @@ def test_the_graph_sees_imports_inside_functions():
 
 
 @pytest.mark.parametrize("module", ["smpl_envs.evaluation", "smpl_envs.envs.recovery", "smpl_envs.envs.recovery_rules",
-                                    "smpl_envs.motion", "smpl_envs.policy_settings"])
+                                    "smpl_envs.motion", "smpl_envs.policy_settings", "agents.run", "agents.policies",
+                                    "agents.on_policy", "agents.cli"])
 def test_module_imports_first_in_a_fresh_interpreter(module):
     code = f"import {module}, gymnasium as gym; import smpl_envs; gym.make('SMPL/Recovery-v0').close()"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)

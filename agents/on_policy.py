@@ -1,7 +1,7 @@
 """What every on-policy agent here shares: settings, an env, a policy, rollouts, the learn loop,
 logging, saving and loading (as Stable-Baselines3's OnPolicyAlgorithm). An algorithm is a
 subclass that says how it learns from a rollout (`_update`); PPO is one (`ppo.py`), a
-distillation agent another.
+behaviour-cloning agent another (`Distill` in tests/plugin_policies.py).
 
 Read top to bottom: `OnPolicyConfig` lists the shared settings with their defaults; the
 constructor wires an env, a policy (a class with its keyword arguments, or a built `Policy`)

@@ -1,14 +1,16 @@
 """Standalone agents for smpl-envs, shaped like Stable-Baselines3.
 
     from agents import PPO
-    model = PPO("SMPL/Imitation-v0", n_envs=16).learn(1_000_000)
+    model = PPO("SMPL/Imitation-v0", n_envs=16, policy_kwargs={"actor_hidden": [512, 256]}).learn(1_000_000)
     model.save("walk.pt")
-    model = agents.load("walk.pt")          # any agent class, from its checkpoint
+    model = agents.load("walk.pt")          # any agent class and any policy, from its checkpoint
     action, _ = model.predict(obs, deterministic=True)
 
-The pieces, for agents built on this machinery: settings dataclasses (`PPOConfig`,
-`AMPConfig`), the policy (`networks.Policy`, `networks.ActorCritic`), and rollouts apart from the
-update (`rollout.RolloutBuffer`, `rollout.RolloutCollector`, `rollout.RolloutHooks`).
+The pieces, for agents and policies built on this machinery: the on-policy base
+(`OnPolicyAlgorithm`, its settings `OnPolicyConfig`; PPO and AMP are subclasses), settings
+dataclasses (`PPOConfig`, `AMPConfig`), policies as plug-ins (`Policy`, the default
+`ActorCritic`, `register_policy`, `load_policy` for a checkpoint's frozen policy), and rollouts
+apart from the update (`RolloutBuffer`, `RolloutCollector`, `RolloutHooks`).
 """
 from __future__ import annotations
 
@@ -19,6 +21,8 @@ from .callbacks import Callback, CallbackList, CheckpointCallback, EvalCallback
 from .checkpoint import load_checkpoint
 from .logger import Logger
 from .networks import ActorCritic, Policy
+from .on_policy import OnPolicyAlgorithm, OnPolicyConfig
+from .policies import PolicyClassError, load_policy, register_policy
 from .ppo import PPO, PPOConfig
 from .rollout import RolloutBuffer, RolloutCollector, RolloutHooks
 
@@ -26,7 +30,8 @@ AGENTS = {"PPO": PPO, "AMP": AMP}
 
 
 def load(path: str | Path, env=None, **kwargs):
-    """Load a checkpoint of any shipped agent class (the class is recorded in the file)."""
+    """Load a checkpoint of any shipped agent class (the class is recorded in the file), with
+    its policy made again from the recorded policy class and arguments."""
     name = load_checkpoint(path, "cpu")["class"]
     if name not in AGENTS:
         raise ValueError(f"{path} holds an agent of unknown class {name!r}; known: {sorted(AGENTS)}")
@@ -34,5 +39,5 @@ def load(path: str | Path, env=None, **kwargs):
 
 
 __all__ = ["PPO", "AMP", "AGENTS", "load", "Callback", "CallbackList", "CheckpointCallback", "EvalCallback",
-           "Logger", "PPOConfig", "AMPConfig", "Policy", "ActorCritic", "RolloutBuffer", "RolloutCollector",
-           "RolloutHooks"]
+           "Logger", "OnPolicyAlgorithm", "OnPolicyConfig", "PPOConfig", "AMPConfig", "Policy", "ActorCritic",
+           "PolicyClassError", "register_policy", "load_policy", "RolloutBuffer", "RolloutCollector", "RolloutHooks"]

@@ -34,7 +34,10 @@ from typing import Any
 
 import torch
 
-FORMAT = "smpl-envs-agent/1"                   # the state dict an agent saves
+# The state dict an agent saves. 2: it records its policy's class and arguments (policy_class,
+# policy_kwargs); 1 had none, its policy was always the actor-critic (agents.policies reads both).
+FORMAT = "smpl-envs-agent/2"
+READABLE_FORMATS = ("smpl-envs-agent/1", FORMAT)
 CONTAINER_FORMAT = "smpl-envs-agent-sha256/1"  # the checksummed wrapper around it
 # `save_checkpoint` writes `.<name>.<random>.tmp` next to `<name>` (a .pt file) before renaming.
 TEMP_GLOB = ".*.pt.*.tmp"
@@ -161,7 +164,11 @@ def load_checkpoint(path: str | os.PathLike, device: str | torch.device = "cpu")
     elif str(device) != "cpu":
         ckpt = _torch_load(path, path, device)  # an unchecked old file: read again onto the device
     # Otherwise a file from before checksums, or not ours at all: the format test below decides.
-    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+    found = ckpt.get("format") if isinstance(ckpt, dict) else None
+    if found not in READABLE_FORMATS:
+        if isinstance(found, str) and found.startswith(FORMAT.split("/")[0] + "/"):
+            raise ValueError(f"{path} is a smpl-envs agent checkpoint of format {found!r}, from a newer version; this "
+                             f"one reads {', '.join(READABLE_FORMATS)}")
         raise ValueError(f"{path} is not a smpl-envs agent checkpoint (format {FORMAT!r})")
     return ckpt
 
@@ -212,5 +219,5 @@ def clean_stale_temp_files(directory: str | os.PathLike, min_age_s: float = 0.0)
     return removed
 
 
-__all__ = ["FORMAT", "CONTAINER_FORMAT", "NO_SPACE", "CorruptCheckpointError", "DiskFullError", "save_checkpoint",
+__all__ = ["FORMAT", "READABLE_FORMATS", "CONTAINER_FORMAT", "NO_SPACE", "CorruptCheckpointError", "DiskFullError", "save_checkpoint",
            "load_checkpoint", "newest_readable_checkpoint", "clean_stale_temp_files", "versions"]

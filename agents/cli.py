@@ -2,56 +2,32 @@
 
     smpl-envs train demo_walk_ppo                       # runs/demo_walk_ppo-<time>/
     smpl-envs train imitation_ppo --set env.num_envs=16 --set agent.hyperparams.learning_rate=3e-4
+    smpl-envs train imitation_ppo --set agent.policy.kwargs.actor_hidden=[1024,512]
     smpl-envs train imitation_amp --profile paper       # PHC's scale, for a GPU box
     smpl-envs train --resume runs/imitation_ppo-<time> --set train.total_timesteps=8e6
     smpl-envs eval runs/imitation_ppo-<time> --motions walk run
     smpl-envs record runs/imitation_ppo-<time> --steps 600
     smpl-envs plot runs/imitation_ppo-<time>
 
-A run directory holds config.yaml (the resolved recipe), checkpoints/ (ckpt_<steps>.pt, last.pt,
-best.pt), logs/ (progress.csv, tb/ for TensorBoard), videos/, and after training eval.json,
-eval.txt and curves.png. Mistakes in what the user typed end in one `error: ...` line and exit
-status 2; a full disk in one `error:` line naming the file and exit status 74 (training stops
-with what it had saved and prints the `--resume` command); anything else is a bug and keeps its
-traceback. Settings and output paths are checked (the env and the agent built) before the run
-directory is created (or `--overwrite` deletes the old one), before an evaluation or a video.
-
-One training per run directory: a live run holds RUN/.lock (`recipes.RunLock`: an flock, with its
-process id), so a second start into it, `--overwrite` of it or `--resume` of it is refused,
-naming that process. The kernel drops the lock when the process ends, however it ends.
-
-Stopping and resuming: Ctrl-C or SIGTERM (schedulers, `timeout`) saves checkpoints/last.pt and
-prints the `--resume` command (exit status 130 / 143). `--resume` starts from last.pt or, when
-that does not read back intact, from the newest intact ckpt_*.pt (saying so); its logs continue
-from that checkpoint's step, replacing whatever a killed run logged after it; temporary files of
-interrupted saves are removed.
+This module parses the command line and hands each command to `agents.run`, which holds what a
+run is (its directory, locking, stopping and resuming, evaluation, videos) and documents it.
+Mistakes in what the user typed end in one `error: ...` line and exit status 2; a full disk in
+one `error:` line naming the file and exit status 74 (training stops with what it had saved and
+prints the `--resume` command); anything else is a bug and keeps its traceback.
 """
 from __future__ import annotations
 
 import argparse
-import shutil
-import signal
 import sys
-import threading
-import time
 from pathlib import Path
-from typing import Any
 
 from smpl_envs.backend import MissingExtraError
 
-from .checkpoint import NO_SPACE, DiskFullError, clean_stale_temp_files, load_checkpoint, newest_readable_checkpoint
-from .plot import EmptyLogError, plot_run, read_progress
-from .recipes import (LOCK_NAME, RecipeError, RunLock, apply_overrides, available_recipes, check_run_dir_free,
-                      check_writable, find_checkpoint, in_use_message, is_unused_run_dir, live_run_pid,
-                      load_recipe, make_run_dir, read_config, run_dir_of)
-
-# Settings a checkpoint fixes: its weights only fit these.
-FIXED_ON_RESUME = ("env.id", "agent.class") + tuple(
-    f"agent.hyperparams.{k}" for k in ("actor_hidden", "critic_hidden", "disc_hidden", "activation",
-                                       "disc_activation", "amp_num_frames"))
-INTERRUPTED = 130  # the shell's status for a SIGINT
-TERMINATED = 143   # and for a SIGTERM
-DISK_FULL = 74     # sysexits.h's EX_IOERR: a write failed, here for want of space
+from . import run
+from .checkpoint import NO_SPACE
+from .plot import EmptyLogError, plot_run
+from .recipes import RecipeError, available_recipes, parse_override
+from .run import DISK_FULL, INTERRUPTED, TERMINATED, no_space_message, print_error  # noqa: F401 (exit statuses)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -61,24 +37,13 @@ def main(argv: list[str] | None = None) -> int:
             _set_threads(args.threads)
         return args.func(args) or 0
     except (RecipeError, EmptyLogError, FileNotFoundError, MissingExtraError) as e:
-        _error(str(e))
+        print_error(str(e))
         raise SystemExit(2) from None
     except OSError as e:
         if e.errno not in NO_SPACE:
             raise
-        _error(_no_space(e))
+        print_error(no_space_message(e))
         raise SystemExit(DISK_FULL) from None
-
-
-def _error(message: str) -> None:
-    print(f"error: {' '.join(message.split())}", file=sys.stderr)
-
-
-def _no_space(e: OSError) -> str:
-    # A checkpoint's DiskFullError says which file and what is left; other writes name their file.
-    if isinstance(e, DiskFullError):
-        return str(e)
-    return f"no space left on device{f' writing {e.filename}' if e.filename else ''}"
 
 
 # ---------------------------------------------------------------------------------------- parser
@@ -143,538 +108,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# ---------------------------------------------------------------------------------------- train
+# ---------------------------------------------------------------------------------------- commands
 def cmd_train(args) -> int:
-    # Everything that can fail on a bad setting (the recipe, the env, the agent, the device) is
-    # built before the run directory is created or an old one deleted, so a mistake costs nothing.
-    prepare = _prepare_resume if args.resume is not None else _prepare_new
-    recipe, run, agent, evaluator, lock = prepare(args)
-    try:
-        return _train(args, recipe, run, agent, evaluator)
-    except BaseException:
-        # A new run that dies before writing anything would leave a directory that can neither
-        # be resumed nor reused; it holds nothing worth keeping.
-        if args.resume is None and is_unused_run_dir(run):
-            shutil.rmtree(run, ignore_errors=True)
-        raise
-    finally:
-        agent.close()
-        lock.release()
-
-
-def _prepare_new(args) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
-    if args.recipe is None:
-        raise RecipeError("train needs a RECIPE (or --resume RUN_DIR)")
-    overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
-    recipe = load_recipe(args.recipe, overrides, args.profile)
-    root, name = (args.run_dir.parent, args.run_dir.name) if args.run_dir else (args.runs_root, None)
-    # Refuse before the slow part, not after it.
-    if args.run_dir is None:
-        check_writable(args.runs_root, "--runs-root", directory=True)
-    else:
-        check_writable(args.run_dir, "--run-dir", directory=True)
-        if not args.overwrite:
-            check_run_dir_free(args.run_dir)
-        else:
-            _check_overwrite(args.run_dir)
-            if args.run_dir.is_dir():  # deleted and made again, in its parent
-                check_writable(args.run_dir.parent, "--run-dir", directory=True)
-    _check_train_settings(recipe)
-    agent = _constructed(lambda: _new_agent(args, recipe), recipe)
-    lock = None
-    try:
-        evaluator = _constructed(lambda: Evaluator(recipe, progress=not args.no_progress), recipe)
-        if args.run_dir is not None:
-            # Held before anything is deleted or written: a run started meanwhile is refused.
-            lock = RunLock(args.run_dir).acquire()
-            if args.overwrite:
-                _clear_run_dir(args.run_dir)
-        run = make_run_dir(recipe, root, name)
-        lock = lock or RunLock(run).acquire()
-        _clean_temp_files(run / "checkpoints")
-        _attach_logger(agent, run)
-    except BaseException:
-        agent.close()
-        if lock is not None:
-            lock.release()
-        raise
-    return recipe, run, agent, evaluator, lock
-
-
-def _prepare_resume(args) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
-    recipe, run, overrides = _resume_recipe(args)
-    check_writable(run, "--resume", directory=True)
-    _check_train_settings(recipe)
-    # Before the temporary files are cleaned: a live run's would be its saves in progress.
-    lock = RunLock(run).acquire()
-    try:
-        _clean_temp_files(run / "checkpoints")
-        checkpoint = _resume_checkpoint(run)
-        agent = _constructed(lambda: _resume_agent(args, recipe, checkpoint, overrides), recipe)
-    except BaseException:
-        lock.release()
-        raise
-    try:
-        evaluator = _constructed(lambda: Evaluator(recipe, progress=not args.no_progress), recipe)
-        # Only now that the overrides proved usable are they recorded in config.yaml.
-        make_run_dir(recipe, run.parent, run.name, resume=True)
-        _attach_logger(agent, run, resume_step=agent.num_timesteps)
-    except BaseException:
-        agent.close()
-        lock.release()
-        raise
-    return recipe, run, agent, evaluator, lock
-
-
-def _check_overwrite(run: Path) -> None:
-    pid = live_run_pid(run)
-    if pid is not None:
-        raise RecipeError(f"--overwrite would delete a live run: {in_use_message(run, pid)}")
-
-
-def _clear_run_dir(run: Path) -> None:
-    """--overwrite: delete everything in `run` but the lock file, which this process holds."""
-    for entry in run.iterdir():
-        if entry.name == LOCK_NAME:
-            continue
-        if entry.is_dir() and not entry.is_symlink():
-            shutil.rmtree(entry)
-        else:
-            entry.unlink()
-
-
-def _train(args, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
-    try:
-        return _train_until_done(args, recipe, run, agent, evaluator)
-    except OSError as e:
-        if e.errno not in NO_SPACE:
-            raise
-        # The run stops here with what it had saved: each save replaces its file only once written.
-        _error(f"{_no_space(e)}; training stopped at {agent.num_timesteps:,} timesteps; {_what_was_saved(run)}")
-        return DISK_FULL
-
-
-def _what_was_saved(run: Path) -> str:
-    path, _ = newest_readable_checkpoint(run / "checkpoints")
-    if path is None:
-        return "no checkpoint was saved"
-    steps = load_checkpoint(path)["num_timesteps"]
-    return f"the run keeps {path} ({steps:,} timesteps): free some space, then continue with: " \
-           f"smpl-envs train --resume {run}"
-
-
-def _train_until_done(args, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
-    print(f"run directory: {run}", flush=True)
-    evaluator.history_dir = run / "evals"
-    callbacks, eval_cb = _callbacks(recipe, run, evaluator, resuming=args.resume is not None)
-    remaining = recipe["train"]["total_timesteps"] - agent.num_timesteps
-    with _SigtermAsInterrupt() as sigterm:
-        try:
-            if remaining > 0:
-                agent.learn(remaining, callback=callbacks, progress_bar=not args.no_progress,
-                            reset_num_timesteps=args.resume is None, log_interval=recipe["train"]["log_interval"])
-            else:
-                print(f"nothing to train: the run is at {agent.num_timesteps:,} of "
-                      f"{recipe['train']['total_timesteps']:,} timesteps")
-            agent.save(run / "checkpoints" / "last.pt")
-        except KeyboardInterrupt as stop:
-            sigterm.disarm()  # a SIGTERM now must not cut short the save below
-            path = agent.save(run / "checkpoints" / "last.pt")
-            terminated = isinstance(stop, Terminated)
-            print(f"\n{'terminated (SIGTERM)' if terminated else 'interrupted'} at {agent.num_timesteps:,} "
-                  f"timesteps; saved {path}\ncontinue with: smpl-envs train --resume {run}", file=sys.stderr)
-            return TERMINATED if terminated else INTERRUPTED
-    _finish_run(agent, recipe, run, evaluator, eval_cb, progress=not args.no_progress)
-    print(f"run directory: {run}")
-    return 0
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (what schedulers and `timeout` send) raised in the main thread, so training stops
-    the way Ctrl-C stops it: last.pt saved, the resume command printed."""
-
-
-class _SigtermAsInterrupt:
-    """While active, the first SIGTERM raises Terminated; later ones are ignored until
-    `disarm` ends that too. The previous handler comes back on exit."""
-
-    def __init__(self):
-        self.armed = True
-        self.previous = None
-
-    def _handle(self, signum, frame) -> None:
-        if self.armed:
-            self.armed = False  # one exception: a second SIGTERM must not interrupt the save
-            raise Terminated()
-
-    def disarm(self) -> None:
-        self.armed = False
-
-    def __enter__(self) -> "_SigtermAsInterrupt":
-        # Python lets only the main thread set handlers (main() called from a worker thread
-        # then keeps the default: SIGTERM ends the process).
-        if threading.current_thread() is threading.main_thread():
-            self.previous = signal.signal(signal.SIGTERM, self._handle)
-        return self
-
-    def __exit__(self, *exc) -> None:
-        if self.previous is not None:
-            signal.signal(signal.SIGTERM, self.previous)
-
-
-def _check_train_settings(recipe: dict) -> None:
-    """Settings that pass the recipe's checks but would only fail later: the device when the
-    agent is built, the seed at the env's first reset (which comes after the run directory)."""
-    seed = recipe["train"]["seed"]
-    if seed is not None and seed < 0:
-        raise RecipeError(f"train.seed must be >= 0 (Gymnasium seeds are non-negative), got {seed}")
-    _check_device(recipe["train"]["device"], "train.device")
-
-
-def _check_device(device: str, what: str) -> None:
-    from .ppo import resolve_device
-
-    try:
-        resolve_device(device, name=what)
-    except ValueError as e:
-        raise RecipeError(str(e)) from None
-
-
-def _constructed(build, recipe: dict):
-    """build(), with the errors a bad setting raises during construction (an unknown env kwarg,
-    a learning rate of "fast" or -1, a hidden size that is not a list, a backend whose extra is
-    not installed) turned into RecipeError: they are the user's mistakes, to be reported in one
-    line."""
-    try:
-        return build()
-    except RecipeError:
-        raise
-    except (ValueError, TypeError, RuntimeError, MissingExtraError) as e:
-        raise RecipeError(f"cannot build {recipe['agent']['class']} on {recipe['env']['id']} with these settings "
-                          f"(check env.kwargs, agent.hyperparams and train.device): {e}") from None
-
-
-def _new_agent(args, recipe: dict):
-    from . import AGENTS
-
-    env, train, agent = recipe["env"], recipe["train"], recipe["agent"]
-    # No logs yet: the run directory does not exist until the agent has been built (_attach_logger).
-    return AGENTS[agent["class"]](
-        env["id"], n_envs=env["num_envs"], env_kwargs=env["kwargs"], seed=train["seed"], device=train["device"],
-        verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False, update_threads=args.update_threads,
-        **agent["hyperparams"])
-
-
-def _attach_logger(agent, run: Path, resume_step: int | None = None) -> None:
-    """Point the agent's logs at the run directory. `resume_step`: the checkpoint's step count,
-    from which a resumed run's logs continue (rows a killed run wrote after it are dropped)."""
-    from .logger import Logger
-
-    agent.logger.close()
-    # Set directly rather than with set_logger, which has no resume_step.
-    agent.logger = Logger(run / "logs", stdout=agent.verbose > 0, tensorboard=True, resume_step=resume_step)
-    dropped = agent.logger.dropped_rows
-    if dropped:
-        print(f"logs: dropped {dropped} row(s) of progress.csv logged after the checkpoint's step "
-              f"{resume_step:,} (the run stopped before its next checkpoint); those steps are trained again",
-              file=sys.stderr)
-
-
-def _clean_temp_files(directory: Path) -> None:
-    # A run directory has one writer (its RunLock), so any temporary checkpoint file in it is a
-    # killed save's.
-    removed = clean_stale_temp_files(directory)
-    if removed:
-        print(f"removed {len(removed)} temporary file(s) left by an interrupted save: "
-              f"{', '.join(str(p) for p in removed)}", file=sys.stderr)
-
-
-def _resume_recipe(args) -> tuple[dict, Path, list[str]]:
-    """The stored recipe of the run to resume, with this command's overrides applied."""
-    if args.recipe is not None or args.profile is not None or args.run_dir is not None:
-        raise RecipeError("--resume continues a run with its own config.yaml; give no RECIPE, --profile or "
-                          "--run-dir (change the budget with --set train.total_timesteps=...)")
-    run = args.resume
-    overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
-    stored = read_config(run)
-    recipe = apply_overrides(stored, overrides)
-    # The checkpoint fixes the env and the networks. Repeating their values is fine (the same
-    # command line with --resume added); changing them is not.
-    for key in FIXED_ON_RESUME:
-        if _get_dotted(recipe, key) != _get_dotted(apply_overrides(stored), key):
-            raise RecipeError(f"--set {key}: a resumed run keeps the env id, agent class and network sizes "
-                              "of its checkpoint")
-    # So does what the policy's actions and observations mean (smpl_envs.policy_settings).
-    from smpl_envs.policy_settings import contradictions
-
-    changed = contradictions(recipe["env"]["id"], apply_overrides(stored)["env"]["kwargs"], recipe["env"]["kwargs"])
-    if changed:
-        name, (given, trained) = next(iter(changed.items()))
-        raise RecipeError(f"--set env.kwargs.{name}={given}: a resumed run keeps the policy settings of its "
-                          f"checkpoint ({name}={trained!r}); train a new run to change it")
-    return recipe, run, overrides
-
-
-def _resume_checkpoint(run: Path) -> Path:
-    """last.pt, or when it is damaged (a kill mid-write on a filesystem without atomic renames,
-    a full disk) the newest numbered checkpoint that reads back intact, saying which and why."""
-    directory = run / "checkpoints"
-    path, skipped = newest_readable_checkpoint(directory)
-    if path is None:
-        why = "; ".join(f"{p.name}: {_brief(p, reason)}" for p, reason in skipped) or "no last.pt or ckpt_*.pt"
-        raise RecipeError(f"cannot resume {run}: no readable checkpoint in {directory} ({why})")
-    if path.name != "last.pt":
-        why = "; ".join(f"skipped {p} ({_brief(p, reason)})" for p, reason in skipped) or \
-            f"there is no {directory / 'last.pt'}"
-        print(f"warning: {why}; resuming from {path} instead", file=sys.stderr)
-    return path
-
-
-def _brief(path: Path, reason: str, limit: int = 200) -> str:
-    """A load error shortened for one line: without the path it starts with, up to its first
-    sentence (torch appends a paragraph of advice)."""
-    text = " ".join(reason.split())
-    if text.startswith(str(path)):
-        text = text[len(str(path)):].lstrip(" :").removeprefix("is ")
-    text = text.split(". ")[0]
-    return text if len(text) <= limit else text[:limit - 3] + "..."
-
-
-def _resume_agent(args, recipe: dict, checkpoint: Path, overrides: list[str]):
-    import agents
-
-    # Hyperparameters changed on this command (a lower learning rate ...) replace the saved ones.
-    prefix = "agent.hyperparams."
-    names = {k[len(prefix):].split(".")[0] for k in (o.partition("=")[0].strip() for o in overrides)
-             if k.startswith(prefix)}
-    changed = {name: recipe["agent"]["hyperparams"][name] for name in names}
-    return agents.load(checkpoint, env="auto", device=recipe["train"]["device"],
-                       n_envs=recipe["env"]["num_envs"], env_kwargs=recipe["env"]["kwargs"],
-                       verbose=0 if args.quiet else 1, log_dir=None, tensorboard=False,
-                       update_threads=args.update_threads, **changed)
-
-
-def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool):
-    from .callbacks import CheckpointCallback, EvalCallback
-
-    callbacks, eval_cb = [], None
-    if recipe["train"]["checkpoint_every"] > 0:
-        callbacks.append(CheckpointCallback(recipe["train"]["checkpoint_every"], run / "checkpoints"))
-    if recipe["eval"]["every"] > 0:
-        key, minimize = evaluator.protocol.key, evaluator.protocol.minimize
-        eval_cb = EvalCallback(recipe["eval"]["every"], evaluator, run / "checkpoints", key=key, minimize=minimize,
-                               best=_best_logged(run, key, minimize) if resuming else None)
-        callbacks.append(eval_cb)
-    if recipe["train"]["max_minutes"] is not None:
-        callbacks.append(WallClockBudget(recipe["train"]["max_minutes"]))
-    return callbacks, eval_cb
-
-
-class WallClockBudget:
-    """Stops training after `minutes` of this command's wall-clock time (train.max_minutes):
-    on a CPU a time budget is often what the user has, not a step count."""
-
-    def __init__(self, minutes: float):
-        self.deadline = time.monotonic() + 60.0 * minutes
-
-    def __call__(self, agent) -> bool:
-        return time.monotonic() < self.deadline
-
-
-def _best_logged(run: Path, key: str, minimize: bool = False) -> float | None:
-    """The best eval/<key> the run logged before, so a resumed run's best.pt only gets replaced
-    by a better policy. None when there is no best.pt to protect."""
-    import numpy as np
-
-    csv_path = run / "logs" / "progress.csv"
-    if not (run / "checkpoints" / "best.pt").is_file() or not csv_path.is_file():
-        return None
-    try:
-        values = read_progress(csv_path).get(f"eval/{key}")
-    except EmptyLogError:
-        return None
-    if values is None or not np.isfinite(values).any():
-        return None
-    return float(np.nanmin(values) if minimize else np.nanmax(values))
-
-
-def _finish_run(agent, recipe: dict, run: Path, evaluator: "Evaluator", eval_cb, progress: bool) -> None:
-    """The end of training: a final evaluation (logged like the periodic ones), eval.json/.txt,
-    curves.png and a video of the deterministic policy."""
-    if eval_cb is not None:
-        # Go through the callback, so best.pt also considers the final policy; skip when the
-        # last periodic evaluation already saw exactly this policy.
-        if not eval_cb.history or eval_cb.history[-1][0] != agent.num_timesteps or evaluator.last is None:
-            eval_cb.fire(agent)
-    else:
-        for k, v in evaluator(agent).items():
-            agent.logger.record(f"eval/{k}", v)
-    if agent.logger.values:  # the final evaluation's row (unless learn() already wrote it)
-        agent.logger.dump(agent.num_timesteps)
-    _write_eval(evaluator.last, run / "eval.json")
-    print(plot_run(run, run / "curves.png"))
-    steps = recipe["video"]["steps"]
-    if steps > 0:
-        info = record_video(agent, run / "videos" / "final.mp4", steps=steps, motions=recipe["video"]["motions"],
-                            fps=recipe["video"]["fps"], seed=recipe["train"]["seed"], progress=progress)
-        print(info["path"])
-
-
-# ---------------------------------------------------------------------------------------- evaluation
-class Evaluator:
-    """`evaluate_fn` for EvalCallback: the task's own evaluation protocol on the agent's env,
-    returning the summary's numbers; keeps the full result of the latest call for eval.json.
-
-    Once `history_dir` is set (by `_train`, when the run directory exists), every evaluation's
-    full result (per clip or per episode, which the progress CSV's summary columns leave out) is
-    also kept as `<timesteps>.json` / `.txt` there: how each clip of a multi-clip run came along,
-    after the run's checkpoints have rotated out."""
-
-    def __init__(self, recipe: dict, progress: bool = True):
-        from smpl_envs.evaluation import protocol_for
-
-        self.protocol = protocol_for(recipe["env"]["id"])
-        self.motions, self.num_envs = recipe["eval"]["motions"], recipe["eval"]["num_envs"]
-        self.options, self.progress = recipe["eval"]["options"], progress
-        self.history_dir: Path | None = None
-        self.last = None
-
-    def __call__(self, agent) -> dict[str, float]:
-        self.last = evaluate_agent(agent, self.motions, self.num_envs, self.progress, **self.options)
-        if self.history_dir is not None:
-            _save_result(self.last, self.history_dir / f"{agent.num_timesteps:012d}.json")
-        return summary_metrics(self.last.summary)
-
-
-def evaluate_agent(agent, motions=None, num_envs: int = 8, progress: bool = True, **options):
-    """smpl_envs.evaluate of `agent` on the env it trained on, which evaluate sets up from the
-    agent's record (its settings, the env kwargs the task's protocol carries over, the training
-    motions unless `motions`)."""
-    import smpl_envs
-
-    if agent.env_id is None:
-        raise RecipeError("the checkpoint records no env id to evaluate on")
-    try:
-        return smpl_envs.evaluate(agent, env=agent.env_id, motions=motions or None, num_envs=num_envs,
-                                  progress=progress, **options)
-    except ValueError as e:  # an option or kwarg the task's protocol refuses
-        raise RecipeError(str(e)) from None
-
-
-def summary_metrics(summary: dict) -> dict[str, float]:
-    """The summary's numbers without the clip count (a property of the motions, not the policy)."""
-    return {k: float(v) for k, v in summary.items()
-            if k != "clips" and isinstance(v, (int, float)) and not isinstance(v, bool)}
-
-
-def _save_result(result, json_path: Path) -> str:
-    """An evaluation's result as JSON at `json_path` and its table next to it (.txt); returns
-    the table."""
-    result.save(json_path)  # creates the directory
-    table = result.table()
-    json_path.with_suffix(".txt").write_text(table + "\n")
-    return table
-
-
-def _write_eval(result, json_path: Path) -> None:
-    print(_save_result(result, json_path))
-    print(json_path)
+    return run.train(args.recipe, overrides=args.overrides, profile=args.profile, run_dir=args.run_dir,
+                     runs_root=args.runs_root, overwrite=args.overwrite, resume=args.resume, device=args.device,
+                     quiet=args.quiet, update_threads=args.update_threads, progress=not args.no_progress)
 
 
 def cmd_eval(args) -> int:
-    from .recipes import parse_override
-
-    if args.num_envs is not None and args.num_envs < 1:
-        raise RecipeError(f"--num-envs must be >= 1, got {args.num_envs}")
-    agent, ckpt, run, config = _load_target(args)
-    ev = (config or {}).get("eval", {})
-    # The run's evaluation options, then the command line's: --threshold and --episodes are
-    # shorthands for the options of the imitation and goal-task protocols, --option for any.
-    options = dict(ev.get("options") or {})
-    if "threshold" in ev:  # run configs from before eval.options
-        options["threshold"] = ev["threshold"]
-    options.update(parse_override(o) for o in args.options)
+    # --threshold and --episodes are shorthands for the options of the imitation and goal-task
+    # protocols, --option for any; they go over the run's own.
+    options = dict(parse_override(o) for o in args.options)
     options.update({k: v for k, v in (("threshold", args.threshold), ("episodes", args.episodes)) if v is not None})
     motions = args.motions[0] if args.motions and len(args.motions) == 1 else args.motions
-    out = args.out or (run / "eval.json" if run is not None and Path(args.target).is_dir() else None)
-    if out is not None:  # the JSON and the table beside it, checked before the evaluation runs
-        for path in (out, out.with_suffix(".txt")):
-            check_writable(path, _output_option(args))
-    result = evaluate_agent(agent, motions or ev.get("motions"), args.num_envs or ev.get("num_envs") or 8,
-                            progress=not args.no_progress, **options)
-    print(f"checkpoint: {ckpt} ({agent.num_timesteps:,} timesteps)")
-    if out is None:
-        print(result.table())
-    else:
-        _write_eval(result, out)
-    return 0
-
-
-# ---------------------------------------------------------------------------------------- video
-def record_video(agent, path: Path, steps: int, motions=None, fps: float | None = None, seed: int | None = None,
-                 progress: bool = True) -> dict:
-    """An mp4 of the deterministic policy in one world of its training env, which record sets up
-    from the agent's record as its task's protocol says (imitation: from the start of a clip)."""
-    import smpl_envs
-
-    if agent.env_id is None:
-        raise RecipeError("the checkpoint records no env id to record in")
-    kwargs = {"motions": motions} if motions else {}
-    return smpl_envs.record(agent.env_id, agent, path, steps=steps, episodes=None, fps=fps, seed=seed,
-                            progress=progress, **kwargs)
+    return run.evaluate_checkpoint(args.target, which=args.checkpoint, motions=motions, num_envs=args.num_envs,
+                                   options=options, out=args.out, device=args.device, progress=not args.no_progress)
 
 
 def cmd_record(args) -> int:
-    if args.steps is not None and args.steps < 1:
-        raise RecipeError(f"--steps must be >= 1, got {args.steps}")
-    agent, ckpt, run, config = _load_target(args)
-    video = (config or {}).get("video", {})
-    if args.out is not None:
-        out = args.out
-    elif run is not None:
-        out = run / "videos" / f"{ckpt.stem}.mp4"
-    else:
-        out = ckpt.with_suffix(".mp4")
-    check_writable(out, _output_option(args))  # before the video renders
-    seed = args.seed if args.seed is not None else (config or {}).get("train", {}).get("seed")
-    info = record_video(agent, out, steps=args.steps or video.get("steps") or 300,
-                        motions=args.motions or video.get("motions"), fps=video.get("fps"), seed=seed,
-                        progress=not args.no_progress)
-    print(info["path"])
-    return 0
+    return run.record_checkpoint(args.target, which=args.checkpoint, steps=args.steps, motions=args.motions,
+                                 out=args.out, seed=args.seed, device=args.device, progress=not args.no_progress)
 
 
-# ---------------------------------------------------------------------------------------- plot
 def cmd_plot(args) -> int:
     print(plot_run(args.run, args.out))
     return 0
-
-
-# ---------------------------------------------------------------------------------------- helpers
-def _load_target(args) -> tuple[Any, Path, Path | None, dict | None]:
-    """(agent without an env, its checkpoint, its run directory or None, the run's config or None)."""
-    import agents
-
-    _check_device(args.device, "--device")
-    ckpt = find_checkpoint(args.target, args.checkpoint)
-    run = Path(args.target) if Path(args.target).is_dir() else run_dir_of(ckpt)
-    config = read_config(run) if run is not None and (run / "config.yaml").is_file() else None
-    try:
-        agent = agents.load(ckpt, env=None, device=args.device, verbose=0, tensorboard=False)
-    except ValueError as e:  # not a checkpoint of ours
-        raise RecipeError(str(e)) from None
-    return agent, ckpt, run, config
-
-
-def _output_option(args) -> str:
-    """How an error about the output path names it: the option, or the default the user never typed."""
-    return "--out" if args.out is not None else "the default output (choose another with --out)"
-
-
-def _get_dotted(tree: dict, key: str) -> Any:
-    for part in key.split("."):
-        tree = tree.get(part) if isinstance(tree, dict) else None
-    return tree
 
 
 def _set_threads(n: int) -> None:

@@ -8,8 +8,16 @@ A recipe has the sections `env`, `agent`, `train`, `eval` and `video` (see tasks
 carry `profiles`: named sets of dotted-key overrides (`agent.hyperparams.batch_size: 16384`) that
 rescale it, e.g. from this CPU box to PHC's GPU budget. `base: <recipe>` starts from another
 recipe and overrides only what differs (mappings merge key by key, profiles included, except
-env.kwargs and eval.options, which are stated whole; anything else is replaced), so shared
-values are written once. `eval.options` are the task's evaluation options (imitation:
+env.kwargs, agent.policy and eval.options, which are stated whole; anything else is replaced),
+so shared values are written once.
+
+The agent's policy is `agent.policy: {class: NAME, kwargs: {...}}`: a registered policy class
+(`ActorCritic`, the default) or an importable path (`my_package.policies:Composer`) and its
+keyword arguments, where `{checkpoint: NAME_OR_PATH}` stands for another run's or a shipped
+checkpoint's policy (loaded, frozen, when the agent is built: `agents.run`). The actor-critic's
+arguments were agent hyperparameters before policies were plug-ins; written there
+(`agent.hyperparams.actor_hidden`, in an old recipe, a run's config.yaml or a `--set`), they
+move to `agent.policy.kwargs`, replacing the value there. `eval.options` are the task's evaluation options (imitation:
 threshold; goal tasks: episodes, seed), checked against the task's protocol. Resolving a recipe applies the profile,
 then the command line's `key=value` overrides, fills in defaults and validates every section, so a
 typo fails before any env is built rather than hours into a run.
@@ -28,6 +36,8 @@ from typing import Any, Iterable
 import yaml
 
 from . import AGENTS
+from .networks import ActorCritic
+from .policies import PolicyClassError, class_name, policy_class, split_former_hyperparams
 
 try:
     import fcntl
@@ -42,7 +52,7 @@ LOCK_NAME = ".lock"  # a live run's hold on its directory (`RunLock`), with its 
 # form here; the hyperparameters are checked against the agent class's constructor instead.
 DEFAULTS: dict[str, dict[str, Any]] = {
     "env": {"id": None, "num_envs": 1, "kwargs": {}},
-    "agent": {"class": None, "hyperparams": {}},
+    "agent": {"class": None, "policy": None, "hyperparams": {}},
     "train": {"total_timesteps": None, "max_minutes": None, "seed": 0, "checkpoint_every": 0, "log_interval": 1,
               "device": "auto"},
     "eval": {"every": 0, "num_envs": 8, "motions": None, "options": {}},
@@ -55,7 +65,8 @@ META_KEYS = ("recipe_name", "recipe_path", "profile", "overrides")
 RESERVED_HYPERPARAMS = {
     "n_envs": "env.num_envs", "env_kwargs": "env.kwargs", "seed": "train.seed", "device": "train.device",
     "verbose": "the command line (--quiet)", "log_dir": "the run directory", "tensorboard": "the run directory",
-    "update_threads": "the command line (--update-threads)",
+    "update_threads": "the command line (--update-threads)", "policy": "agent.policy.class",
+    "policy_kwargs": "agent.policy.kwargs",
 }
 
 # A float YAML 1.1 reads as a string because it lacks a dot ("3e-4", "1e6").
@@ -184,7 +195,7 @@ def _read_with_bases(path: Path, seen: tuple[Path, ...]) -> dict:
 
 
 # Mappings a recipe states whole: their keys belong to one task, so a base's do not carry over.
-_REPLACED_WHOLE = ("env.kwargs", "eval.options")
+_REPLACED_WHOLE = ("env.kwargs", "agent.policy", "eval.options")
 
 
 def _deep_merge(base: dict, over: dict, prefix: str = "") -> dict:
@@ -272,11 +283,67 @@ def _check_agent(agent: dict) -> None:
         if key in RESERVED_HYPERPARAMS:
             raise RecipeError(f"agent.hyperparams.{key} is not a hyperparameter here: set it with "
                               f"{RESERVED_HYPERPARAMS[key]}")
+    agent["policy"] = _check_policy(agent, AGENTS[name])
+    hp = agent["hyperparams"]
     accepted = accepted_hyperparams(AGENTS[name])
     unknown = sorted(set(hp) - accepted)
     if unknown:
         raise RecipeError(f"unknown {name} hyperparameter(s) {[f'agent.hyperparams.{k}' for k in unknown]}; "
                           f"{name} takes {', '.join(sorted(accepted))}")
+
+
+def _check_policy(agent: dict, agent_class) -> dict:
+    """agent.policy as {"class": name, "kwargs": {...}}: the class importable, its arguments
+    named in its constructor, checkpoint references found; the actor-critic's former
+    hyperparameters moved from agent.hyperparams into its kwargs."""
+    spec = agent["policy"]
+    if spec is None or isinstance(spec, str):
+        spec = {"class": spec}
+    if not isinstance(spec, dict):
+        raise RecipeError(f"agent.policy must be a mapping with class and kwargs, got {spec!r}")
+    extra = sorted(set(spec) - {"class", "kwargs"})
+    if extra:
+        raise RecipeError(f"unknown key(s) {[f'agent.policy.{k}' for k in extra]}; agent.policy has class and kwargs")
+    name = spec.get("class") or class_name(agent_class.default_policy)
+    try:
+        cls = policy_class(name)
+    except PolicyClassError as e:
+        raise RecipeError(f"agent.policy.class: {e}") from None
+    kwargs = spec.get("kwargs") or {}
+    if not isinstance(kwargs, dict):
+        raise RecipeError(f"agent.policy.kwargs must be a mapping of {name}'s keyword arguments, got {kwargs!r}")
+    agent["hyperparams"], former = split_former_hyperparams(agent["hyperparams"])
+    if former:
+        if not issubclass(cls, ActorCritic):
+            keys = ", ".join(f"agent.hyperparams.{k}" for k in sorted(former))
+            raise RecipeError(f"{keys}: arguments of ActorCritic, but agent.policy.class is {name}; give {name}'s "
+                              "arguments in agent.policy.kwargs")
+        kwargs = {**kwargs, **former}
+    params = inspect.signature(cls.__init__).parameters
+    if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        accepted = [p for p in list(params)[3:] if params[p].kind is not inspect.Parameter.VAR_POSITIONAL]
+        unknown = sorted(set(kwargs) - set(accepted))
+        if unknown:
+            raise RecipeError(f"unknown {name} argument(s) {[f'agent.policy.kwargs.{k}' for k in unknown]}; "
+                              f"{name} takes {', '.join(accepted) or 'none'}")
+    _check_checkpoint_references(kwargs, "agent.policy.kwargs")
+    return {"class": name, "kwargs": kwargs}
+
+
+def _check_checkpoint_references(value: Any, where: str) -> None:
+    """Each {checkpoint: NAME_OR_PATH} in `value` names a checkpoint that exists."""
+    if isinstance(value, dict):
+        if set(value) == {"checkpoint"}:
+            try:
+                find_checkpoint(value["checkpoint"])
+            except RecipeError as e:
+                raise RecipeError(f"{where}: {e}") from None
+            return
+        for k, v in value.items():
+            _check_checkpoint_references(v, f"{where}.{k}")
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_checkpoint_references(v, f"{where}[{i}]")
 
 
 def accepted_hyperparams(cls) -> set[str]:

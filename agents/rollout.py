@@ -4,8 +4,10 @@
   minibatches of the valid ones. Algorithms that need more per step (AMP's discriminator windows)
   add named fields with `extra`.
 - `RolloutCollector`: steps a vector env with a policy and fills a buffer, carrying the env's
-  state (last observation, episode returns) from one rollout to the next. It calls a
-  `RolloutHooks` object at reset, at the start of each rollout and after every step.
+  state (last observation, episode returns) from one rollout to the next. The buffer holds the
+  policy's own actions and their log-probabilities; the env gets them through the policy's map
+  (`Policy.env_action`). It calls a `RolloutHooks` object at reset, at the start of each
+  rollout, after every step and at the end of a rollout.
 
 An algorithm's iteration is then: `collector.collect(buffer)`, shape the rewards if it wants to,
 `buffer.compute_advantages(...)`, then its own update over `buffer.minibatches(...)`.
@@ -20,7 +22,7 @@ from __future__ import annotations
 
 import contextlib
 from collections import deque
-from typing import Callable, Iterator
+from typing import Iterator
 
 import numpy as np
 import torch
@@ -34,7 +36,7 @@ class RolloutBuffer:
     """One rollout: tensors of shape (n_steps, n_envs, ...) allocated once and refilled.
 
     obs:        observations as the policy saw them (normalised with that step's statistics)
-    actions:    sampled actions, in the policy's [-1, 1]-space, before clipping
+    actions:    sampled actions, the policy's own (before its map to the env's), unclipped
     log_probs:  log-density of `actions` when they were sampled
     values:     value estimates of `obs`, in return units
     rewards:    rewards (0 on invalid steps); algorithms may reshape them before GAE
@@ -139,6 +141,9 @@ class RolloutHooks:
     on_rollout_start(buffer): before the first step of a rollout.
     on_step(t, info, done, valid): after step `t`; `done` marks worlds whose episode ended in this
         step, `valid` worlds whose step was a real transition (both (n_envs,) bool arrays).
+    on_rollout_end(buffer): after the last step, while `buffer.obs` still holds the raw
+        observations (before they are normalised): labels that need them, in one batch (a
+        teacher's actions, for distillation).
     """
 
     def on_reset(self, info: dict) -> None:
@@ -150,11 +155,15 @@ class RolloutHooks:
     def on_step(self, t: int, info: dict, done: np.ndarray, valid: np.ndarray) -> None:
         pass
 
+    def on_rollout_end(self, buffer: RolloutBuffer) -> None:
+        pass
+
 
 class RolloutCollector:
     """Steps `env` with `policy` and fills a `RolloutBuffer`, one rollout per `collect` call.
 
-    to_env_action: maps the policy's actions ([-1, 1]-space tensors) to the env's action array.
+    The env steps on `policy.env_action(action, obs)` of each sampled action, as the env's own
+    kind of array; the buffer keeps the sampled actions.
     episodes: a deque that receives (return, length) of every episode that ends.
     hooks: a `RolloutHooks`.
     value_threads: torch CPU threads for the value pass after the last step (None: as set).
@@ -171,11 +180,10 @@ class RolloutCollector:
     observation is counted once; the reset observations are counted at `reset`.
     """
 
-    def __init__(self, env: VectorEnv, policy: Policy, to_env_action: Callable[[torch.Tensor], np.ndarray],
-                 episodes: deque, hooks: RolloutHooks | None = None,
+    def __init__(self, env: VectorEnv, policy: Policy, episodes: deque | None = None, hooks: RolloutHooks | None = None,
                  device: torch.device | str = "cpu", value_threads: int | None = None):
-        self.env, self.policy, self.to_env_action = env, policy, to_env_action
-        self.episodes = episodes
+        self.env, self.policy = env, policy
+        self.episodes = episodes if episodes is not None else deque(maxlen=100)
         self.hooks = hooks if hooks is not None else RolloutHooks()
         self.device = torch.device(device)
         self.value_threads = value_threads
@@ -232,7 +240,9 @@ class RolloutCollector:
             buf.obs[t], buf.actions[t] = obs, action  # raw until the rollout's end
             buf.log_probs[t] = dist.log_prob(action).sum(-1)
 
-            next_obs, reward, terminated, truncated, info = env.step(self.to_env_action(action))
+            env_action = pol.env_action(action, obs)  # the policy's map: the one call it adds to a step
+            next_obs, reward, terminated, truncated, info = env.step(env_action if self.native else
+                                                                     env_action.cpu().numpy())
             terminated, truncated = self._flags(terminated), self._flags(truncated)
             done = terminated | truncated
             reward = torch.where(valid, torch.as_tensor(reward, device=self.device).double(), 0.0)
@@ -264,6 +274,7 @@ class RolloutCollector:
                 raise FloatingPointError("the env returned a non-finite observation; the simulation diverged "
                                          "without ending its episode")
 
+        self.hooks.on_rollout_end(buf)
         with torch_threads(self.value_threads):
             # Stored observations become what the actor saw (this rollout's statistics), then
             # every valid one not yet counted is folded into the statistics in one batch.

@@ -41,9 +41,9 @@ import numpy as np
 import torch
 
 import smpl_envs  # noqa: F401  (registers the ids)
-from agents import AGENTS
 from agents.ppo import PPOConfig
 from agents.recipes import load_recipe
+from agents.run import new_agent
 
 
 class ActionLog(gym.vector.VectorWrapper):
@@ -59,10 +59,10 @@ class ActionLog(gym.vector.VectorWrapper):
 
 
 def make_agent(recipe: dict, worlds: int, device: str, update_threads: int | None):
-    env, agent = recipe["env"], recipe["agent"]
+    env = recipe["env"]
     vec = ActionLog(gym.make_vec(env["id"], num_envs=worlds, **env["kwargs"]))
-    return AGENTS[agent["class"]](vec, seed=recipe["train"]["seed"], device=device, verbose=0, log_dir=None,
-                                  tensorboard=False, update_threads=update_threads, **agent["hyperparams"])
+    return new_agent(recipe, env=vec, device=device, verbose=0, log_dir=None, tensorboard=False,
+                     update_threads=update_threads)
 
 
 def train_rate(agent, iterations: int) -> float:

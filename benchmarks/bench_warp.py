@@ -98,13 +98,13 @@ def time_task(env, steps: int, sync) -> float:
 
 def time_training(env, cuda: bool, iterations: int, sync) -> float:
     """PPO samples/s on `env` over `iterations` whole iterations, after one untimed."""
-    from agents import PPO
     from agents.recipes import load_recipe
+    from agents.run import new_agent
 
     recipe = load_recipe("imitation_ppo", profile="paper" if cuda else None)
-    hp = dict(recipe["agent"]["hyperparams"])
+    hp = recipe["agent"]["hyperparams"]
     hp["batch_size"] = min(hp["batch_size"], hp["n_steps"] * env.num_envs)
-    agent = PPO(env, device=env.backend.device, verbose=0, tensorboard=False, seed=0, **hp)
+    agent = new_agent(recipe, env=env, device=env.backend.device, verbose=0, tensorboard=False, seed=0)
     per = agent.config.n_steps * env.num_envs
     agent.learn(per, progress_bar=False)
     sync()

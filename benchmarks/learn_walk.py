@@ -21,6 +21,7 @@ from agents.recipes import load_recipe
 # The recipe's values, read from it so the two cannot drift apart.
 RECIPE = load_recipe("imitation_ppo")
 HYPERPARAMS = RECIPE["agent"]["hyperparams"]
+POLICY = RECIPE["agent"]["policy"]  # the actor-critic and its sizes
 ENV_KWARGS = RECIPE["env"]["kwargs"]  # motions: walk; the env's default energy weight (1e-5)
 
 
@@ -36,12 +37,13 @@ def main() -> None:
     run = Path(args.run_dir)
     (run / "checkpoints").mkdir(parents=True, exist_ok=True)
     config = {"env": {"id": "SMPL/Imitation-v0", "num_envs": args.num_envs, "kwargs": ENV_KWARGS},
-              "agent": {"class": "PPO", "hyperparams": HYPERPARAMS},
+              "agent": {"class": "PPO", "policy": POLICY, "hyperparams": HYPERPARAMS},
               "train": {"seed": args.seed, "minutes": args.minutes}}
     (run / "config.json").write_text(json.dumps(config, indent=2))
 
     model = PPO("SMPL/Imitation-v0", n_envs=args.num_envs, env_kwargs=ENV_KWARGS, seed=args.seed,
-                log_dir=run / "logs", verbose=0, **HYPERPARAMS)
+                log_dir=run / "logs", verbose=0, policy=POLICY["class"], policy_kwargs=POLICY["kwargs"],
+                **HYPERPARAMS)
     deadline = time.monotonic() + 60 * args.minutes
     model.learn(10**10, log_interval=1, progress_bar=False, callback=[
         CheckpointCallback(250_000, run / "checkpoints"),

@@ -10,19 +10,9 @@ if "MUJOCO_GL" not in _os.environ and not (_os.environ.get("DISPLAY") or _os.env
 
 __version__ = "0.1.0"
 
-
-# Task id -> (vector class "module:Class" in smpl_envs.envs, time limit in steps or None). Registering
-# by string keeps `import smpl_envs` light: MuJoCo and the tasks load on the first gym.make.
-ENV_IDS = {
-    "SMPL/Imitation-v0": ("smpl_envs.envs.imitation:ImitationVecEnv", None),
-    "SMPL/KeypointImitation-v0": ("smpl_envs.envs.imitation:KeypointImitationVecEnv", None),
-    "SMPL/Speed-v0": ("smpl_envs.envs.speed:SpeedVecEnv", 300),
-    "SMPL/Reach-v0": ("smpl_envs.envs.reach:ReachVecEnv", 300),
-    "SMPL/Strike-v0": ("smpl_envs.envs.strike:StrikeVecEnv", 300),
-    "SMPL/VRTracking-v0": ("smpl_envs.envs.vr:VRTrackingVecEnv", None),
-    "SMPL/Terrain-v0": ("smpl_envs.envs.terrain:TerrainVecEnv", 300),
-    "SMPL/Recovery-v0": ("smpl_envs.envs.recovery:RecoveryVecEnv", 300),
-}
+# Registering by string (ENV_IDS) keeps `import smpl_envs` light: MuJoCo and the tasks load on
+# the first gym.make.
+from .env_ids import ENV_IDS  # noqa: E402 (after MUJOCO_GL is set)
 
 
 class OneWorld:

@@ -149,7 +149,7 @@ class ClipProtocol(EvalProtocol):
     def make_env(self, env_id, motions, num_envs, env_kwargs, progress, options):
         import gymnasium as gym
 
-        from .envs import load_motions  # imported here: pulls in MuJoCo, not needed for the results API
+        from .motion import load_motions  # imported here: the results API needs no motion code
 
         clash = sorted(set(env_kwargs) & {"motions", "termination_distance", *self.forced_kwargs})
         if clash:
@@ -161,7 +161,7 @@ class ClipProtocol(EvalProtocol):
 
     def check_env(self, env) -> None:
         u = getattr(env, "unwrapped", env)
-        _check_disabled_autoreset(u)
+        check_disabled_autoreset(u)
         if getattr(u, "termination_distance", None) is not None:
             raise ValueError(f"env must be made with termination_distance=None (evaluate applies the "
                              f"success threshold itself), got {u.termination_distance!r}")
@@ -213,7 +213,7 @@ class EpisodeProtocol(EvalProtocol):
 
     def check_env(self, env) -> None:
         u = getattr(env, "unwrapped", env)
-        _check_disabled_autoreset(u)
+        check_disabled_autoreset(u)
         if getattr(u, "max_episode_steps", None) is None:
             raise ValueError("env must have a time limit (max_episode_steps) for an episode evaluation")
 
@@ -227,7 +227,7 @@ class EpisodeProtocol(EvalProtocol):
         return EvalResult(rows, summary, "episodes")
 
 
-def _check_disabled_autoreset(u) -> None:
+def check_disabled_autoreset(u) -> None:
     if hasattr(u, "vec"):
         raise ValueError("evaluate needs an env id or a vector env (gym.make_vec(..., autoreset_mode='Disabled')), "
                          "not a one-world gym.make env")
@@ -319,7 +319,7 @@ def evaluate(policy: Callable, env="SMPL/Imitation-v0", *, motions=None, num_env
             env.close()
 
 
-def _act(policy, obs):
+def policy_actions(policy, obs):
     actions = policy(obs)
     if isinstance(actions, tuple):
         actions = actions[0]
@@ -386,7 +386,7 @@ def _clip_queue(policy: Callable, env, num_clips: int, keys: Callable[[dict], tu
             active = np.flatnonzero(clip >= 0)
             if not len(active):
                 break
-            obs, _, terminated, truncated, info = env.step(_act(policy, obs))
+            obs, _, terminated, truncated, info = env.step(policy_actions(policy, obs))
             obs = np.array(obs, copy=True)
             done = record(active, info, np.asarray(terminated, bool), np.asarray(truncated, bool))
     finally:
@@ -436,7 +436,7 @@ def _run_episodes(policy: Callable, env, protocol: EpisodeProtocol, episodes: in
             active = np.zeros(n, bool)
             active[:count] = True
             while active.any():
-                obs, reward, terminated, truncated, info = env.step(_act(policy, obs))
+                obs, reward, terminated, truncated, info = env.step(policy_actions(policy, obs))
                 obs = np.array(obs, copy=True)
                 terminated, truncated = np.asarray(terminated, bool), np.asarray(truncated, bool)
                 for w in np.flatnonzero(active):
@@ -534,7 +534,7 @@ class ThreePointProtocol(ClipProtocol):
     def make_env(self, env_id, motions, num_envs, env_kwargs, progress, options):
         import gymnasium as gym
 
-        from .envs import load_motions
+        from .motion import load_motions
         from .motion.three_point import as_three_point_lib
 
         clash = sorted(set(env_kwargs) & {"motions", "termination_distance", *self.forced_kwargs})

@@ -31,7 +31,7 @@ from __future__ import annotations
 import inspect
 from typing import Any, Iterable
 
-from . import ENV_IDS
+from .env_ids import ENV_IDS
 
 
 def training_record(policy) -> tuple[str | None, dict] | None:

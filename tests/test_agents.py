@@ -1,6 +1,7 @@
 """PPO and AMP: learning, persistence, resume, the discriminator, and bad input."""
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -242,7 +243,7 @@ def test_amp_discriminator_separates_reference_from_random_policy():
 
 
 def test_subnormals_are_flushed_from_parameters_and_moments():
-    from agents.ppo import adam, flush_subnormals_
+    from agents.optim import adam, flush_subnormals_
 
     tiny = torch.finfo(torch.float32).tiny
     layer = torch.nn.Linear(4, 3)
@@ -337,13 +338,13 @@ def test_settings_are_one_dataclass_per_agent():
 
     assert set(PPOConfig.names()) < set(AMPConfig.names())
     assert accepted_hyperparams(PPO) == set(PPOConfig.names()) - {"seed"}  # the recipe sets the seed in train:
-    model = PPO(None, n_steps=32, bounds_loss_coef=10, actor_hidden=(8,), **{k: v for k, v in TINY.items()
-                                                                            if k != "actor_hidden"})
+    model = PPO(None, n_steps=32, bounds_loss_coef=10, policy_kwargs={"actor_hidden": [8], "critic_hidden": [32, 32]},
+                verbose=0)
     # Values take their field's type, so a checkpoint stores the same dict however they were spelled.
     assert model.hyperparams["bounds_loss_coef"] == 10.0 and isinstance(model.hyperparams["bounds_loss_coef"], float)
-    assert model.hyperparams["actor_hidden"] == [8]
-    assert model.hyperparams == {**PPOConfig().to_dict(), "n_steps": 32, "bounds_loss_coef": 10.0,
-                                 "actor_hidden": [8], "critic_hidden": [32, 32]}
+    # Network sizes are the policy's arguments, not hyperparameters.
+    assert model.hyperparams == {**PPOConfig().to_dict(), "n_steps": 32, "bounds_loss_coef": 10.0}
+    assert model.policy_class is ActorCritic and model.policy_kwargs == {"actor_hidden": [8], "critic_hidden": [32, 32]}
     # Attributes read and write through to the config.
     assert model.n_steps == 32 and model.learning_rate == 3e-4
     model.learning_rate = 1e-5
@@ -356,18 +357,22 @@ def test_settings_are_one_dataclass_per_agent():
 
 def test_policy_can_be_built_apart_and_handed_in(tmp_path):
     torch.manual_seed(0)
-    policy = ActorCritic(3, 1, actor_hidden=(16,), critic_hidden=(16,), log_std_init=-0.5)
+    box = gym.spaces.Box(-2.0, 2.0, (1,))  # Pendulum's: the policy maps its [-1, 1] onto it
+    policy = ActorCritic(3, box, actor_hidden=(16,), critic_hidden=(16,), log_std_init=-0.5)
     model = PPO("Pendulum-v1", n_envs=2, n_steps=16, batch_size=32, policy=policy, seed=0, verbose=0)
     assert model.policy is policy
     before = policy.actor[0].weight.detach().clone()
     model.learn(64, progress_bar=False)
     assert not torch.equal(before, policy.actor[0].weight)  # the handed-in policy is what trains
     path = model.save(tmp_path / "p.pt")
-    again = PPO.load(path, verbose=0, policy=ActorCritic(3, 1, actor_hidden=(16,), critic_hidden=(16,)))
+    again = PPO.load(path, verbose=0, policy=ActorCritic(3, box, actor_hidden=(16,), critic_hidden=(16,)))
     obs = np.random.default_rng(0).normal(size=(8, 3)).astype(np.float32)
     np.testing.assert_array_equal(again.predict(obs)[0], model.predict(obs)[0])
+    np.testing.assert_array_equal(PPO.load(path, verbose=0).predict(obs)[0], model.predict(obs)[0])  # from the record
     with pytest.raises(ValueError, match="policy is for obs 4"):
-        PPO("Pendulum-v1", policy=ActorCritic(4, 1), verbose=0)
+        PPO("Pendulum-v1", policy=ActorCritic(4, box), verbose=0)
+    with pytest.raises(ValueError, match=r"onto \[-1.0, 1.0\], the env's action box is \[-2.0, 2.0\]"):
+        PPO("Pendulum-v1", policy=ActorCritic(3, 1), verbose=0)
 
 
 def test_collector_fills_the_buffer_and_calls_its_hooks():
@@ -390,14 +395,17 @@ def test_collector_fills_the_buffer_and_calls_its_hooks():
         def on_step(self, t, info, done, valid):
             self.calls.append(t)
 
+        def on_rollout_end(self, buffer):
+            self.calls.append("end")
+
     env = gym.make_vec("Pendulum-v1", num_envs=2, vectorization_mode="sync")
-    policy = ActorCritic(3, 1, actor_hidden=(8,), critic_hidden=(8,))
+    policy = ActorCritic(3, env.single_action_space, actor_hidden=(8,), critic_hidden=(8,))
     episodes, hooks = deque(), Recorder()
-    collector = RolloutCollector(env, policy, lambda a: a.clamp(-1, 1).numpy() * 2, episodes, hooks)
+    collector = RolloutCollector(env, policy, episodes, hooks)
     collector.reset(seed=0)
     buf = RolloutBuffer(5, 2, 3, 1)
     last_value, _ = collector.collect(buf)
-    assert hooks.calls == ["reset", "start", 0, 1, 2, 3, 4]
+    assert hooks.calls == ["reset", "start", 0, 1, 2, 3, 4, "end"]
     assert last_value.shape == (2,) and bool(buf.valid.all())
     # Stored observations are the policy's normalised input of their step; values match them.
     torch.testing.assert_close(buf.values[-1], policy.value(buf.obs[-1]))
@@ -413,8 +421,8 @@ def test_collector_bootstraps_time_limits_and_counts_each_observation_once():
     # NextStep autoreset with a 3-step limit: steps 2 and 6 end episodes by truncation, steps 3
     # and 7 only reset, and their observation is the truncated episode's final one.
     env = gym.make_vec("Pendulum-v1", num_envs=2, vectorization_mode="sync", max_episode_steps=3)
-    policy = ActorCritic(3, 1, actor_hidden=(8,), critic_hidden=(8,))
-    collector = RolloutCollector(env, policy, lambda a: a.clamp(-1, 1).numpy() * 2, deque())
+    policy = ActorCritic(3, env.single_action_space, actor_hidden=(8,), critic_hidden=(8,))
+    collector = RolloutCollector(env, policy, deque())
     collector.reset(seed=0)
     assert policy.obs_norm.count.item() == pytest.approx(2, abs=1e-3)  # the reset observations
     buf = RolloutBuffer(8, 2, 3, 1)

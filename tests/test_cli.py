@@ -50,9 +50,9 @@ def test_shipped_recipes_load(name, profile):
     assert "profiles" not in recipe
     assert recipe["agent"]["class"] in agents.AGENTS
     if profile == "paper":
-        hp = recipe["agent"]["hyperparams"]
+        hp, policy = recipe["agent"]["hyperparams"], recipe["agent"]["policy"]["kwargs"]
         assert recipe["env"]["num_envs"] == 1536 and hp["batch_size"] == 16384
-        assert hp["actor_hidden"] == hp["critic_hidden"] == [1024, 512]
+        assert policy["actor_hidden"] == policy["critic_hidden"] == [1024, 512]
         assert recipe["train"]["total_timesteps"] == 10_000_000_000
         assert isinstance(hp["learning_rate"], float)
 
@@ -89,7 +89,8 @@ def test_profile_then_overrides(tmp_path):
     ])
     hp = recipe["agent"]["hyperparams"]
     assert hp["learning_rate"] == pytest.approx(3e-4) and isinstance(hp["learning_rate"], float)
-    assert hp["actor_hidden"] == [64, 32]
+    # The actor-critic's former hyperparameter, moved to the policy's arguments over the recipe's.
+    assert recipe["agent"]["policy"]["kwargs"]["actor_hidden"] == [64, 32] and "actor_hidden" not in hp
     assert hp["batch_size"] == 16384 and hp["disc_hidden"] == [1024, 512]   # from the profile
     assert recipe["train"]["total_timesteps"] == 1_000_000
     assert recipe["env"]["kwargs"] == {"motions": "walk", "reward_weights": {"pos": 0.6}}

@@ -22,7 +22,8 @@ import pytest
 
 import agents
 import smpl_envs
-from agents import PPO, cli
+from agents import PPO
+from agents import run as run_module
 from agents.cli import DISK_FULL, INTERRUPTED, TERMINATED, main
 from agents.logger import Logger
 from agents.recipes import RUN_SUBDIRS, RunLock, live_run_pid, load_recipe, write_config
@@ -394,7 +395,7 @@ def no_work(monkeypatch):
         raise AssertionError("the work started before the output path was checked")
 
     for name in ("_new_agent", "evaluate_agent", "record_video"):
-        monkeypatch.setattr(cli, name, started)
+        monkeypatch.setattr(run_module, name, started)
 
 
 UNWRITABLE = [

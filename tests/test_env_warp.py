@@ -161,7 +161,7 @@ def test_ppo_keeps_its_rollout_in_torch(env):
                 actor_hidden=[32], critic_hidden=[32])
     model.learn(8 * N * 2, progress_bar=False)
     assert model.num_timesteps == 64 and model._collector.native
-    action = model._to_env_action(torch.zeros(N, 69))
+    action = model.policy.env_action(torch.zeros(N, 69), torch.zeros(N, model.obs_dim))
     assert isinstance(action, torch.Tensor)
     assert torch.isfinite(model.rollout_buffer.values).all()
 

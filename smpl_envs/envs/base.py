@@ -46,7 +46,7 @@ from ..backend import make_backend
 from ..features import SELF_OBS_LAYOUT, BodyState, amp_features, heading_rotation, layout_size, layout_slices
 from ..humanoid.builder import build_spec, humanoid_addresses
 from ..humanoid.skeleton import ACTION_SCALE, BODY_NAMES
-from ..motion.library import MotionLib
+from ..motion.library import MotionLib, load_motions
 from ..sim import CPUSim
 from .clip_sampling import FailureWeightedClips
 
@@ -59,19 +59,6 @@ FEET = np.array([i for i, n in enumerate(BODY_NAMES) if n.endswith(("Ankle", "To
 # Attributes of the batched core that the one-world env does not pass on (SingleEnv).
 VECTOR_ONLY = frozenset({"num_envs", "single_observation_space", "single_action_space", "autoreset_mode",
                          "render_world"})
-
-
-def load_motions(motions: str | os.PathLike | list | MotionLib, progress: bool = False,
-                 cache: bool = True) -> MotionLib:
-    """A MotionLib from what a user passes as `motions=`: a shipped clip name, a motion file, a
-    directory tree, a saved (cached) library, a list of those, or a MotionLib. `cache`: the
-    MotionLib's disk cache (True, a directory, or False for none)."""
-    lib = motions if isinstance(motions, MotionLib) else MotionLib.load(motions, progress=progress, cache=cache)
-    short = [lib.names[i] for i in np.flatnonzero(lib.lengths < 2)]
-    if short:
-        raise ValueError(f"motions: clips need at least 2 frames; too short: {short[:5]}"
-                         + (f" and {len(short) - 5} more" if len(short) > 5 else ""))
-    return lib
 
 
 def _autoreset_mode(mode: str | AutoresetMode) -> AutoresetMode:

@@ -66,6 +66,7 @@ from ..evaluation import ClipProtocol
 from ..features import IMITATION_GOAL_LAYOUT, KEYPOINT_GOAL_LAYOUT, BodyState, rotation_angle, tracking_obs, xp
 from ..humanoid.skeleton import BODY_NAMES
 from .base import HumanoidVecEnv
+from .recovery_rules import RecoveryController
 from .reference import RESIDUAL_SCALE, ReferenceTracker, check_action_mode
 
 REWARD_WEIGHTS = {"pos": 0.5, "rot": 0.3, "lin_vel": 0.1, "ang_vel": 0.1}
@@ -163,8 +164,6 @@ class ImitationVecEnv(HumanoidVecEnv):
                 recovery = {}
             if not isinstance(recovery, dict):
                 raise ValueError(f"recovery must be True, False or a dict of recovery kwargs, got {recovery!r}")
-            from .recovery import RecoveryController  # here: recovery.py builds on this module
-
             self.recovery = RecoveryController(self, **recovery)
             self.reset_options = (*self.reset_options, "recovery_start")
 

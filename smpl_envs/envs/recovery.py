@@ -58,7 +58,6 @@ and fallen+far starts on the standing clip (module `RecoveryProtocol` docstring)
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,172 +65,13 @@ from tqdm.auto import tqdm
 
 from .. import metrics
 from ..metrics import recovered_within, recovery_frame  # noqa: F401 (also this module's API)
-from ..evaluation import EvalProtocol, EvalResult, _act, _check_disabled_autoreset
-from ..features import BodyState, xp
-from .base import check_number, check_range
-from .fallen import FallenStates
+from ..evaluation import EvalProtocol, EvalResult, check_disabled_autoreset, policy_actions
 from .imitation import ImitationVecEnv
-
-START_KINDS = ("reference", "fallen", "far", "fallen+far")
-DEFAULT_STARTS = {"reference": 0.6, "fallen": 0.3, "far": 0.05, "fallen+far": 0.05}
-SWITCH_DISTANCE = 0.5
-CLAMP_DISTANCE = 5.0
-POINT_SCALE = 9.0
-POINT_CLIP = 1.0 / 3.0
-RECOVERY_IMITATION_WEIGHT = 0.5
-GRACE_STEPS = 90
-FAR_DISTANCE = (2.0, 5.0)
-FALLEN, FAR = np.array([False, True, False, True]), np.array([False, False, True, True])
-
-
-# ---------------------------------------------------------------------- pure functions
-def check_starts(starts) -> np.ndarray:
-    """(4,) probabilities over START_KINDS from a {kind: probability} mapping summing to 1."""
-    if not isinstance(starts, Mapping) or not starts:
-        raise ValueError(f"starts must be a mapping of start kind -> probability over {START_KINDS}, got {starts!r}")
-    unknown = sorted(set(starts) - set(START_KINDS))
-    if unknown:
-        raise ValueError(f"starts: unknown start kind(s) {unknown}; known: {list(START_KINDS)}")
-    try:
-        p = np.array([float(starts.get(k, 0.0)) for k in START_KINDS])
-    except (TypeError, ValueError):
-        raise ValueError(f"starts: probabilities must be numbers, got {starts!r}") from None
-    if not np.isfinite(p).all() or (p < 0).any() or abs(p.sum() - 1.0) > 1e-6:
-        raise ValueError(f"starts: probabilities must be >= 0 and sum to 1, got {starts!r} (sum {p.sum():.6g})")
-    return p / p.sum()
-
-
-def root_distance(sim: BodyState, ref: BodyState):
-    """(N,) distance (m) between the simulated and the reference pelvis."""
-    d = ref.pos[:, 0] - sim.pos[:, 0]
-    return xp(d).sqrt((d * d).sum(-1))
-
-
-def point_reward(d_prev, d, scale: float = POINT_SCALE, clip: float = POINT_CLIP):
-    """(N,) root-distance progress reward scale x min(d_prev - d, clip): positive when closing in."""
-    if xp(d_prev, d) is np:
-        d_prev, d = np.asarray(d_prev), np.asarray(d)
-    return scale * (d_prev - d).clip(max=clip)
-
-
-def recovery_reference(sim: BodyState, ref: BodyState, far, clamp: float = CLAMP_DISTANCE) -> BodyState:
-    """The reference the goal shows: for worlds in the mask `far`, non-root bodies replaced by the
-    simulated ones and the root position clamped to `clamp` m from the simulated root along the
-    same direction; other worlds keep `ref`."""
-    m = xp(sim.pos, ref.pos)
-    delta = ref.pos[:, 0] - sim.pos[:, 0]
-    dist = m.sqrt((delta * delta).sum(-1))
-    root = sim.pos[:, 0] + delta * (clamp / dist.clip(min=1e-9)).clip(max=1.0)[:, None]
-    f3, f4 = far[:, None, None], far[:, None, None, None]
-    out = {}
-    for name, f in (("pos", f3), ("rot", f4), ("lin_vel", f3), ("ang_vel", f3)):
-        a = m.where(f, getattr(sim, name), getattr(ref, name))
-        a[:, 0] = getattr(ref, name)[:, 0]
-        out[name] = a
-    out["pos"][:, 0] = m.where(far[:, None], root, ref.pos[:, 0])
-    return BodyState(dof_pos=ref.dof_pos, dof_vel=ref.dof_vel, **out)
-
-
-# ---------------------------------------------------------------------- per-world recovery state
-class RecoveryController:
-    """The recovery state and rules of an imitation env's worlds (module docstring); the env
-    calls it from its hooks. kwargs are the recovery kwargs of Recovery-v0.
-
-    One code path for both backends (`smpl_envs.backend`): per-world arrays, masks and random
-    draws go through the env's backend, so on MuJoCo Warp everything a step or a reset does here
-    stays in torch on the env's device; only the fallen states are made on the host (at setup,
-    copied to the device once: `FallenStates`)."""
-
-    def __init__(self, env, *, starts=None, switch_distance=SWITCH_DISTANCE, clamp_distance=CLAMP_DISTANCE,
-                 point_scale=POINT_SCALE, point_clip=POINT_CLIP, recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT,
-                 grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
-                 fallen_cache_size=128, fallen_seed=0):
-        self.p = check_starts({"reference": 1.0} if starts is None else starts)
-        self.switch_distance = check_number("switch_distance", switch_distance, positive=True)
-        self.clamp_distance = check_number("clamp_distance", clamp_distance, positive=True)
-        self.point_clip = check_number("point_clip", point_clip, positive=True)
-        self.point_scale = check_number("point_scale", point_scale)
-        self.imitation_weight = check_number("recovery_imitation_weight", recovery_imitation_weight)
-        self.continue_prob = check_number("continue_prob", continue_prob)
-        if self.continue_prob > 1.0:
-            raise ValueError(f"continue_prob must be a probability in [0, 1], got {continue_prob!r}")
-        if isinstance(grace_steps, bool) or not isinstance(grace_steps, (int, np.integer)) or grace_steps < 0:
-            raise ValueError(f"grace_steps must be a non-negative integer, got {grace_steps!r}")
-        self.grace_steps = int(grace_steps)
-        self.far_distance = check_range("far_distance", far_distance, 0.0)
-        self.hold_end = bool(hold_end)
-        self.backend = b = env.backend
-        self.fallen = FallenStates(fallen_cache_size, fallen_seed, b)
-        self.hum = env.humanoid
-        self._fallen_kind, self._far_kind = b.asarray(FALLEN, "bool"), b.asarray(FAR, "bool")
-        n = env.num_envs
-        self.start_kind = b.zeros(n, "int")
-        self.root_distance = b.zeros(n)
-        self.grace = b.zeros(n, "int")
-
-    def reset(self, ids, qpos, qvel, ref_root, kind, rng):
-        """Start states of worlds `ids` from their reference-state (qpos, qvel) and reference
-        roots (n, 3): drawn from the start mix, or `kind` (a START_KINDS name, or one per world)."""
-        b, xp = self.backend, self.backend.xp
-        n = len(ids)
-        if kind is None:
-            kinds = b.choice(rng, len(START_KINDS), n, self.p)
-        else:
-            names = [kind] * n if isinstance(kind, str) else list(kind)
-            bad = sorted({str(k) for k in names} - set(START_KINDS))
-            if bad or len(names) != n:
-                raise ValueError(f"reset option recovery_start must be one of {START_KINDS} or {n} of them, got {kind!r}")
-            kinds = b.asarray([START_KINDS.index(k) for k in names], "int")
-        fallen, far = self._fallen_kind[kinds], self._far_kind[kinds]
-        q = qpos[:, self.hum.qpos]  # a view: written in place
-        if fallen.any():
-            q[fallen] = self.fallen.place(rng, ref_root[fallen, :2])
-            qvel[fallen, self.hum.qvel] = 0.0
-        if far.any():
-            m = int(far.sum())
-            r = b.uniform(rng, m, *self.far_distance)
-            bearing = b.uniform(rng, m, 0.0, 2.0 * np.pi)
-            q[far, :2] += b.asarray(r[:, None] * xp.stack([xp.cos(bearing), xp.sin(bearing)], -1))
-        self.start_kind[ids] = kinds
-        self.grace[ids] = xp.where(kinds > 0, self.grace_steps, 0)
-        d = q[:, :3] - ref_root
-        self.root_distance[ids] = xp.sqrt((d * d).sum(-1))
-        return qpos, qvel
-
-    def evaluate(self, body, ref, reward, terms, terminated, truncated, rng):
-        """Reward, terms, terminated and truncated of the recovery rules, from Imitation's."""
-        b, xp = self.backend, self.backend.xp
-        d = root_distance(body, ref)
-        rec = d > self.switch_distance
-        point = point_reward(self.root_distance, d, self.point_scale, self.point_clip)
-        self.root_distance = d
-        if rec.any():
-            w = xp.where(rec, self.imitation_weight, 1.0)
-            terms = {k: (v if k == "energy" else v * w) for k, v in terms.items()}
-            terms["point"] = xp.where(rec, point, 0.0)
-            reward = sum(terms.values())
-        else:
-            terms = {**terms, "point": xp.zeros_like(reward)}
-        self.grace = xp.where(rec, self.grace_steps, (self.grace - 1).clip(min=0))
-        terminated = terminated & ~rec & (self.grace == 0)
-        if self.continue_prob > 0 and terminated.any():
-            ids = b.nonzero(terminated)
-            go_on = ids[b.uniform(rng, len(ids)) < self.continue_prob]
-            terminated[go_on] = False
-            self.grace[go_on] = self.grace_steps
-        if self.hold_end:
-            truncated = xp.zeros_like(truncated)
-        return reward, terms, terminated, truncated
-
-    def goal_reference(self, body, ref_next):
-        """The reference the observation shows (`recovery_reference` beyond switch_distance)."""
-        far = root_distance(body, ref_next) > self.switch_distance
-        return recovery_reference(body, ref_next, far, self.clamp_distance) if far.any() else ref_next
-
-    def info(self) -> dict:
-        copy = self.backend.copy
-        return {"recovering": self.root_distance > self.switch_distance, "root_distance": copy(self.root_distance),
-                "start_kind": copy(self.start_kind)}
+# The rules live in their own module (the imitation env runs them too); their names stay part of
+# this module's API.
+from .recovery_rules import (CLAMP_DISTANCE, DEFAULT_STARTS, FAR_DISTANCE, GRACE_STEPS,  # noqa: F401
+                             POINT_CLIP, POINT_SCALE, RECOVERY_IMITATION_WEIGHT, START_KINDS, SWITCH_DISTANCE,
+                             RecoveryController, check_starts, point_reward, recovery_reference, root_distance)
 
 
 # ---------------------------------------------------------------------- evaluation
@@ -326,7 +166,7 @@ class RecoveryProtocol(EvalProtocol):
 
     def check_env(self, env) -> None:
         u = getattr(env, "unwrapped", env)
-        _check_disabled_autoreset(u)
+        check_disabled_autoreset(u)
         if getattr(u, "recovery", None) is None:
             raise ValueError("env must be a recovery env (SMPL/Recovery-v0)")
         if getattr(u, "max_episode_steps", None) is None:
@@ -387,7 +227,7 @@ def _run_wave(policy, env, kind: str, seed: int, limit: int):
     alive = np.ones(n, bool)
     broke = np.zeros(n, bool)
     for t in range(1, limit + 1):
-        obs, _, terminated, truncated, info = env.step(_act(policy, obs))
+        obs, _, terminated, truncated, info = env.step(policy_actions(policy, obs))
         obs = np.array(obs, copy=True)
         diverged = np.asarray(info["diverged"], bool) | np.asarray(terminated, bool)
         broke |= alive & diverged

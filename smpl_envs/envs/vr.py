@@ -67,8 +67,9 @@ import numpy as np
 from ..evaluation import ThreePointProtocol
 from ..features import BodyState, body_goal_obs, goal_layout, self_obs, xp
 from ..humanoid.skeleton import BODY_NAMES
+from ..motion import load_motions
 from ..motion.three_point import TRACKED, DeviceStreams, as_three_point_lib
-from .base import HumanoidVecEnv, load_motions
+from .base import HumanoidVecEnv
 from .imitation import ENERGY_WEIGHT, imitation_reward, set_tracking_settings
 from .reference import RESIDUAL_SCALE, ReferenceTracker
 

@@ -82,6 +82,19 @@ def load_motion(path_or_name: str | os.PathLike, skeleton: Skeleton = MEAN_SKELE
     return Motion.from_raw(raws[0], skeleton, ground)
 
 
+def load_motions(motions: str | os.PathLike | list | MotionLib, progress: bool = False,
+                 cache: bool = True) -> MotionLib:
+    """A MotionLib from what a user passes as `motions=`: a shipped clip name, a motion file, a
+    directory tree, a saved (cached) library, a list of those, or a MotionLib. `cache`: the
+    MotionLib's disk cache (True, a directory, or False for none)."""
+    lib = motions if isinstance(motions, MotionLib) else MotionLib.load(motions, progress=progress, cache=cache)
+    short = [lib.names[i] for i in np.flatnonzero(lib.lengths < 2)]
+    if short:
+        raise ValueError(f"motions: clips need at least 2 frames; too short: {short[:5]}"
+                         + (f" and {len(short) - 5} more" if len(short) > 5 else ""))
+    return lib
+
+
 @dataclass
 class MotionState:
     """Reference of N environments at one instant; arrays (N, ...) as in `Motion`."""

@@ -16,7 +16,7 @@ from smpl_envs.motion.plausibility import (
     FEET, FLIGHT_ACC_TOLERANCE, GRAVITY, MAX_SLIDE_SPEED, SUPPORT_MARGIN, check_motion,
     support_points_world,
 )
-from smpl_envs.motion import synthetic as syn
+from smpl_envs.motion import procedural as syn
 from smpl_envs.motion.synthetic import CLIP_NAMES, CLIPS_DIR
 from smpl_envs.rotations import quat_apply, quat_mul, yaw_quat
 

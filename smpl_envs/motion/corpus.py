@@ -2,7 +2,7 @@
 that measures generalisation.
 
 Clips come in families (walks, runs, reaches, kicks, transitions ...), each a generator of
-`synthetic` / `upper_body` / `whole_body` with parameters drawn from stated ranges. Every clip
+`procedural` / `upper_body` / `whole_body` with parameters drawn from stated ranges. Every clip
 has its own random stream, derived from (seed, split, family, index) by numpy's SeedSequence, so
 a clip is the same on any machine and any subset (one family) can be made alone.
 
@@ -33,7 +33,7 @@ from tqdm.auto import tqdm
 
 from .motion import RawMotion
 from .plausibility import check_motion
-from . import synthetic as syn
+from . import procedural as syn
 from . import upper_body as ub
 from . import whole_body as wb
 
@@ -563,36 +563,3 @@ def table(records: list[ClipRecord]) -> str:
                  f"**{frames['test'] / syn.FPS / 3600:.2f}** | | |")
     return "\n".join(lines)
 
-
-def main(argv=None) -> None:
-    """`python -m smpl_envs.motion.corpus [--seed N]`: generate (and cache) both splits as the
-    environments load them, then print the family table."""
-    import argparse
-    import time
-
-    from .library import MotionLib
-
-    parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
-    args = parser.parse_args(argv)
-    records = []
-    for split in SPLITS:
-        start = time.perf_counter()
-        lib = MotionLib.load(f"corpus:{split}#{args.seed}")
-        print(f"corpus:{split}: {lib.num_motions} clips, {lib.num_frames / syn.FPS / 3600:.2f} h "
-              f"({time.perf_counter() - start:.0f} s)")
-        records += _records(lib, split)
-    print(table(records))
-
-
-def _records(lib, split: str) -> list[ClipRecord]:
-    """Manifest records of a loaded corpus library, from its clip names and lengths."""
-    out = []
-    for name, frames in zip(lib.names, lib.lengths):
-        family = name.rsplit(f"_{split}_", 1)[0]
-        out.append(ClipRecord(name, family, split, int(frames), {}, 0))
-    return out
-
-
-if __name__ == "__main__":
-    main()

@@ -1,9 +1,9 @@
 """Parametrised upper-body motions for the procedural corpus: reaches, waves, punches, pointing
-and arm raises, standing (balanced, as `synthetic`'s quasi-static clips are) or as an arm pose to
-lay over a walk (`synthetic._locomotion(..., arm_pose=...)`).
+and arm raises, standing (balanced, as the shipped quasi-static clips are) or as an arm pose to
+lay over a walk (`procedural._locomotion(..., arm_pose=...)`).
 
 An arm posture is four angles (radians): upper-arm flexion (forward swing) and abduction
-(sideways lift) in the chest frame, elbow flexion, and the upper arm's twist; `synthetic._arm`
+(sideways lift) in the chest frame, elbow flexion, and the upper arm's twist; `procedural._arm`
 turns them into a shoulder and elbow solve. A movement is a list of keyed postures, eased with
 the minimum-jerk profile between keys (deliberate movements start and end at rest), so every
 clip here begins and ends standing still with the arms relaxed. All functions are pure and
@@ -18,7 +18,7 @@ from scipy.optimize import least_squares
 from ..humanoid.kinematics import forward_kinematics
 from ..rotations import quat_apply, quat_mul
 from .motion import RawMotion
-from .synthetic import (
+from .procedural import (
     B, DEG, OFFSETS, SIDES, _arm, _balanced, _fit_height, _solve_arm, _keys, _minjerk, _raw, _rot, _solve, _Spec,
     _standing_legs, _time, _upright_spine,
 )
@@ -245,7 +245,7 @@ def arm_raise(side: str = "R", both: bool = True, plane: float = 0.0, angle: flo
 
 def walking_arm_pose(kind: str, side: str, start: float, duration: float, amount: float = 1.0,
                      frequency: float = 1.5):
-    """An `arm_pose` for `synthetic._locomotion`: during [start, start + duration] s, arm `side`
+    """An `arm_pose` for `procedural._locomotion`: during [start, start + duration] s, arm `side`
     blends from its swing to a gesture (`kind`: "wave", "point", "raise" or "reach" (forward and
     up, as for something on a shelf); `amount` [0, 1]
     scales its height) and back; the other arm keeps swinging."""

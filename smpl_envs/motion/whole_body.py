@@ -2,7 +2,7 @@
 
 Each family is a pure, deterministic function of a few physical parameters returning a
 `RawMotion` at 30 fps that starts and ends standing still (so clips can be chained), built on the
-machinery of `smpl_envs.motion.synthetic` (pelvis trajectory + foot / arm targets solved by
+machinery of `smpl_envs.motion.procedural` (pelvis trajectory + foot / arm targets solved by
 closed-form IK, centre of mass balanced over the support where the motion is slow, ballistic
 flight where the body leaves the ground). The shipped clips "kick", "crouch" and "jump" are
 particular members (synthetic.py calls these functions).
@@ -23,7 +23,7 @@ import numpy as np
 from ..rotations import quat_apply, yaw_quat
 from .motion import FPS, RawMotion
 from .plausibility import GRAVITY
-from .synthetic import (
+from .procedural import (
     B, BALL_HEIGHT, DEG, FOOT_CENTRE, OFFSETS, SIDES, SKELETON, _arm, _balanced, _centre_of_mass,
     _hermite, _keys, _leg_length, _max_pelvis_height, _minjerk, _rot, _smooth_below, _solve, _Spec,
     _standing_legs, _support_point, _time, _upright_spine,

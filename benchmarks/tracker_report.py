@@ -39,7 +39,7 @@ def per_family(rows: list[dict]) -> list[dict]:
 
 def markdown(title: str, families: list[dict], total: dict) -> str:
     def cell(x):
-        return "-" if x is None else f"{x:.1f}"
+        return "-" if x is None or x != x else f"{x:.1f}"  # undefined (no clip succeeded): "-"
     head = "| family | clips | success | " + " | ".join(label for _, label in METRICS) + " |"
     lines = [f"**{title}**", "", head, "|" + "---|" * (3 + len(METRICS))]
     for row in families + [{"family": "**all**", **total}]:

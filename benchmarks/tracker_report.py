@@ -55,9 +55,9 @@ def main(argv=None) -> None:
     parser.add_argument("--num-envs", type=int, default=16)
     parser.add_argument("--splits", nargs="+", choices=list(SPLITS), default=list(SPLITS))
     args = parser.parse_args(argv)
-    from agents.cli import _load_target  # the command line's own lookup of runs and names
+    from agents.run import _load_target  # the command line's own lookup of runs and names
 
-    agent, ckpt, _, _ = _load_target(argparse.Namespace(target=args.target, checkpoint="best", device="cpu"))
+    agent, ckpt, _, _ = _load_target(args.target, "best", "cpu")
     args.out.mkdir(parents=True, exist_ok=True)
     for split in args.splits:
         result = smpl_envs.evaluate(agent, agent.env_id, motions=SPLITS[split], num_envs=args.num_envs)
@@ -70,9 +70,9 @@ def main(argv=None) -> None:
         print(markdown(f"{split} ({ckpt.name})", families, total), "\n")
         failed = [r for r in rows if not r["success"]]
         if failed:
-            print("| failing clip | frames tracked |\n|---|---|")
+            print("| failing clip | failed at frame |\n|---|---|")
             for r in failed:
-                print(f"| {r['name']} | {r.get('fail_frame', r['frames'])} of {r['frames']}+ |")
+                print(f"| {r['name']} | {r['fail_frame']} |")
             print()
 
 

@@ -142,3 +142,20 @@ def test_the_full_corpus_passes_its_checks():
         assert len({r.name for r in records}) == len(records)
         if split == "train":
             assert hours >= 1.6
+
+
+def test_tracker_report_tables_per_family(tmp_path, capsys):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "benchmarks" / "tracker_report.py"
+    spec = importlib.util.spec_from_file_location("tracker_report", path)
+    report = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(report)
+    assert report.family_of("kick_test_0003") == "kick" and report.family_of("walk") == "walk"
+    report.main(["walk", "--splits", "clips", "--out", str(tmp_path), "--num-envs", "8"])
+    doc = json.loads((tmp_path / "tracker_clips.json").read_text())
+    by_family = {row["family"]: row for row in doc["families"]}
+    assert len(by_family) == 8 and by_family["walk"]["success_rate"] == 1.0  # the shipped walk policy
+    out = capsys.readouterr().out
+    assert "| walk | 1 | 100.0 % |" in out and "| failing clip |" in out

@@ -219,26 +219,14 @@ class MotionLib:
     @classmethod
     def _load_tree(cls, root: Path, skeleton, cache, progress) -> "MotionLib":
         files = _motion_files(root)
-        if cache is False:
+
+        def build():
             raws, errors = _load_files(files, skeleton, progress)
             return cls(raws, skeleton, errors=errors)
-        folder = cache_dir() if cache is True else Path(cache).expanduser()
-        target = folder / f"motionlib-{_tree_key(files, skeleton)}"
-        if target.exists():
-            try:
-                return cls._read(target, skeleton)
-            except Exception as e:  # a cache is never trusted: whatever is wrong, parse again
-                warnings.warn(f"motion cache entry {target} is damaged ({e}); rebuilding it",
-                              stacklevel=3)
-        raws, errors = _load_files(files, skeleton, progress)
-        lib = cls(raws, skeleton, errors=errors)
-        try:
-            lib.save(target)
-        except OSError as e:  # the motions are loaded; only the next load's speed-up is lost
-            warnings.warn(f"motion cache directory {folder} cannot be written ({e}); the tree "
-                          "will be parsed again next time (set SMPL_ENVS_CACHE or pass cache= "
-                          "to use another directory, cache=False to stop caching)", stacklevel=3)
-        return lib
+
+        if cache is False:
+            return build()
+        return cls._cached(f"motionlib-{_tree_key(files, skeleton)}", cache, skeleton, build, "parsed")
 
     @classmethod
     def _load_corpus(cls, name: str, skeleton, cache, progress) -> "MotionLib":
@@ -249,23 +237,44 @@ class MotionLib:
 
         spec, seed = corpus.parse_seed(name)
         corpus.parse(spec)  # a bad name fails here, before anything is generated
+
+        records = []
+
+        def build():
+            raws, made = corpus.generate(spec, seed=seed, progress=progress)
+            records.extend(made)
+            return cls(raws, skeleton)
+
+        def write_manifest(target):
+            corpus.write_manifest(target.with_suffix(".json"), spec, seed, records)
+
         if cache is False:
-            return cls(corpus.generate(spec, seed=seed, progress=progress)[0], skeleton)
+            return build()
+        key = f"corpus-{corpus.cache_key(spec, seed)}-{_skeleton_key(skeleton)[:12]}"
+        return cls._cached(key, cache, skeleton, build, "generated", after_save=write_manifest)
+
+    @classmethod
+    def _cached(cls, key: str, cache, skeleton, build, remade: str, after_save=None) -> "MotionLib":
+        """The saved library `key` in the cache directory, or `build()`'s, saved there (then
+        `after_save(target)`). A cache only ever speeds loading up: a damaged entry is rebuilt,
+        an unwritable directory only warns."""
         folder = cache_dir() if cache is True else Path(cache).expanduser()
-        target = folder / f"corpus-{corpus.cache_key(spec, seed)}-{_skeleton_key(skeleton)[:12]}"
+        target = folder / key
         if target.exists():
             try:
                 return cls._read(target, skeleton)
             except Exception as e:  # a cache is never trusted: whatever is wrong, make it again
-                warnings.warn(f"motion cache entry {target} is damaged ({e}); rebuilding it", stacklevel=3)
-        raws, records = corpus.generate(spec, seed=seed, progress=progress)
-        lib = cls(raws, skeleton)
+                warnings.warn(f"motion cache entry {target} is damaged ({e}); rebuilding it",
+                              stacklevel=4)
+        lib = build()
         try:
             lib.save(target)
-            corpus.write_manifest(target.with_suffix(".json"), spec, seed, records)
-        except OSError as e:
-            warnings.warn(f"motion cache directory {folder} cannot be written ({e}); the corpus "
-                          "will be generated again next time", stacklevel=3)
+            if after_save is not None:
+                after_save(target)
+        except OSError as e:  # the motions are loaded; only the next load's speed-up is lost
+            warnings.warn(f"motion cache directory {folder} cannot be written ({e}); the motions "
+                          f"will be {remade} again next time (set SMPL_ENVS_CACHE or pass cache= "
+                          "to use another directory, cache=False to stop caching)", stacklevel=4)
         return lib
 
     def save(self, path: str | os.PathLike) -> None:

@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from tqdm.auto import tqdm
 
+from ..progress import pbar
 from .motion import RawMotion
 from .plausibility import check_motion
 from . import procedural as syn
@@ -494,7 +494,7 @@ def generate(spec: str = "corpus:train", seed: int = DEFAULT_SEED, progress: boo
     split, families = parse(spec)
     jobs = [(f, i) for f in families for i in range(max(1, int(round(getattr(FAMILIES[f], split) * scale))))]
     raws, records = [], []
-    for family, i in tqdm(jobs, desc=f"generating {spec}", disable=not progress, unit="clip"):
+    for family, i in pbar(jobs, desc=f"generating {spec}", disable=not progress, unit="clip"):
         raw, rec = make_clip(seed, split, family, i)
         raws.append(raw)
         records.append(rec)

@@ -35,7 +35,7 @@ def kinematic_frames(model, motion, renderer):
 
 def physics_frames(model, motion, renderer):
     """Open-loop PD tracking; also yields the mean body distance to the reference (m)."""
-    substeps = round(1.0 / (motion.fps * model.opt.timestep))  # 4 at 1/120 s (README, "Timing")
+    substeps = round(1.0 / (motion.fps * model.opt.timestep))  # 4 at 1/120 s (docs/humanoid.md, "Timing")
     data = mujoco.MjData(model)
     data.qpos[:], data.qvel[:] = motion.qpos[0], motion.qvel[0]
     mujoco.mj_forward(model, data)

@@ -528,7 +528,7 @@ def write_manifest(path, spec: str, seed: int, records: list[ClipRecord]) -> Non
 
 
 def summary(records: list[ClipRecord]) -> list[dict]:
-    """Per family: clips, hours and frames, as the README's table shows them."""
+    """Per family: clips, hours and frames, as docs/corpus.md's table shows them."""
     rows = []
     for fam in FAMILIES.values():
         recs = [r for r in records if r.family == fam.name]
@@ -541,7 +541,7 @@ def summary(records: list[ClipRecord]) -> list[dict]:
 
 
 def table(records: list[ClipRecord]) -> str:
-    """The README's table (markdown): per family, clips and hours of each split, ranges, and the
+    """docs/corpus.md's table (markdown): per family, clips and hours of each split, ranges, and the
     bands only the test split draws from."""
     lines = ["| family | group | train clips | train h | test clips | test h | what it holds | held out for test |",
              "|---|---|---|---|---|---|---|---|"]

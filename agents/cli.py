@@ -8,6 +8,8 @@
     smpl-envs eval runs/imitation_ppo-<time> --motions walk run
     smpl-envs record runs/imitation_ppo-<time> --steps 600
     smpl-envs plot runs/imitation_ppo-<time>
+    smpl-envs recipes                                   # the shipped recipes, one line each
+    smpl-envs info                                      # versions, GL backend, devices: for bug reports
 
 This module parses the command line and hands each command to `agents.run`, which holds what a
 run is (its directory, locking, stopping and resuming, evaluation, videos) and documents it.
@@ -18,6 +20,7 @@ prints the `--resume` command); anything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -26,7 +29,7 @@ from smpl_envs.backend import MissingExtraError
 from . import run
 from .checkpoint import NO_SPACE
 from .plot import EmptyLogError, plot_run
-from .recipes import RecipeError, available_recipes, parse_override
+from .recipes import RecipeError, available_recipes, parse_override, recipe_description, recipe_dirs
 from .run import DISK_FULL, INTERRUPTED, TERMINATED, no_space_message, print_error  # noqa: F401 (exit statuses)
 
 
@@ -39,6 +42,9 @@ def main(argv: list[str] | None = None) -> int:
     except (RecipeError, EmptyLogError, FileNotFoundError, MissingExtraError) as e:
         print_error(str(e))
         raise SystemExit(2) from None
+    except BrokenPipeError:  # `smpl-envs recipes | head`: the reader has gone, nothing more to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     except OSError as e:
         if e.errno not in NO_SPACE:
             raise
@@ -48,7 +54,10 @@ def main(argv: list[str] | None = None) -> int:
 
 # ---------------------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
+    import smpl_envs
+
     parser = argparse.ArgumentParser(prog="smpl-envs", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--version", action="version", version=f"smpl-envs {smpl_envs.__version__}")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--threads", type=int, default=None, metavar="N",
                         help="torch CPU threads (default: torch's choice; 1 is often fastest on a shared or "
@@ -105,6 +114,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", type=Path, metavar="RUN")
     p.add_argument("--out", type=Path, help="PNG path (default: RUN/curves.png)")
     p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("recipes", help="list the recipes train finds by name, with what each trains")
+    p.set_defaults(func=cmd_recipes, threads=None)
+
+    p = sub.add_parser("info", help="print versions, the GL backend and the devices (for bug reports)")
+    p.set_defaults(func=cmd_info, threads=None)
     return parser
 
 
@@ -132,6 +147,24 @@ def cmd_record(args) -> int:
 
 def cmd_plot(args) -> int:
     print(plot_run(args.run, args.out))
+    return 0
+
+
+def cmd_recipes(args) -> int:
+    for directory in recipe_dirs():
+        paths = sorted(directory.glob("*.yaml")) if directory.is_dir() else []
+        if paths:
+            print(f"{directory}:")
+            width = max(len(p.stem) for p in paths)
+            for path in paths:
+                print(f"  {path.stem:<{width}}  {recipe_description(path)}")
+    return 0
+
+
+def cmd_info(args) -> int:
+    from .info import format_info, system_info
+
+    print(format_info(system_info()))
     return 0
 
 

@@ -28,7 +28,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 from gymnasium.vector import VectorEnv
-from tqdm.auto import tqdm
+
+from smpl_envs.progress import pbar
 
 from .callbacks import as_callback
 from .checkpoint import load_checkpoint, save_checkpoint
@@ -280,7 +281,7 @@ class OnPolicyAlgorithm:
         if self._collector is None:
             self._start_collector(seed=self.config.seed if reset_num_timesteps else None)
         callback.on_training_start(self)
-        bar = tqdm(total=target, initial=self.num_timesteps, disable=not progress_bar, unit="step",
+        bar = pbar(total=target, initial=self.num_timesteps, disable=not progress_bar, unit="step",
                    dynamic_ncols=True, desc=type(self).__name__)
         start_steps, t0 = self.num_timesteps, time.perf_counter()
         try:

@@ -78,15 +78,38 @@ class RecipeError(ValueError):
 
 
 # ---------------------------------------------------------------------------------------- lookup
+# The shipped recipes: tasks/ at the top of a source checkout (an editable install reads them
+# there); an installed wheel carries them as agents/tasks/ (setup.py copies them in).
+SOURCE_RECIPES = Path(__file__).resolve().parents[1] / "tasks"
+PACKAGED_RECIPES = Path(__file__).resolve().parent / "tasks"
+
+
+def shipped_recipe_dir() -> Path:
+    return PACKAGED_RECIPES if PACKAGED_RECIPES.is_dir() else SOURCE_RECIPES
+
+
 def recipe_dirs() -> list[Path]:
-    """Where bare recipe names are looked up: ./tasks first (the user's own), then the repository's."""
-    repo_tasks = Path(__file__).resolve().parents[1] / "tasks"
-    dirs = [Path.cwd() / "tasks", repo_tasks]
+    """Where bare recipe names are looked up: ./tasks first (the user's own), then the shipped ones."""
+    dirs = [Path.cwd() / "tasks", shipped_recipe_dir()]
     return [d for i, d in enumerate(dirs) if d.resolve() not in [e.resolve() for e in dirs[:i]]]
 
 
 def available_recipes() -> list[str]:
     return sorted({p.stem for d in recipe_dirs() if d.is_dir() for p in d.glob("*.yaml")})
+
+
+def recipe_description(path: str | os.PathLike, width: int = 110) -> str:
+    """A recipe's one-line description: the first sentence of the comment that opens its file."""
+    lines = []
+    for line in Path(path).read_text().splitlines():
+        if not line.startswith("#"):
+            break
+        lines.append(line.lstrip("#").strip())
+    text = " ".join(part for part in lines if part)
+    sentence = re.split(r"(?<=[.!?])\s+(?=[A-Z`(])", text, maxsplit=1)[0]
+    if len(sentence) > width:
+        sentence = sentence[:width - 3].rsplit(" ", 1)[0] + "..."
+    return sentence
 
 
 def resolve_recipe_path(name_or_path: str | os.PathLike) -> Path:
@@ -636,4 +659,4 @@ __all__ = ["RecipeError", "load_recipe", "apply_overrides", "validate_recipe", "
            "set_dotted", "make_run_dir", "check_run_dir_free", "is_unused_run_dir", "RunLock", "live_run_pid",
            "read_config", "write_config",
            "find_checkpoint", "run_dir_of",
-           "available_recipes", "recipe_dirs", "resolve_recipe_path", "accepted_hyperparams", "pretrained_checkpoints"]
+           "available_recipes", "recipe_dirs", "shipped_recipe_dir", "recipe_description", "resolve_recipe_path", "accepted_hyperparams", "pretrained_checkpoints"]

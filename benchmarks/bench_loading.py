@@ -19,11 +19,11 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from smpl_envs.humanoid.skeleton import MEAN_PELVIS_SMPL
 from smpl_envs.motion import MotionLib, available_clips, load_motion
 from smpl_envs.motion.export import local_quat_to_smpl_pose
+from smpl_envs.progress import pbar
 
 
 def make_tree(root: Path, clips: int, seconds: float, fps: float, seed: int = 0) -> None:
@@ -31,7 +31,7 @@ def make_tree(root: Path, clips: int, seconds: float, fps: float, seed: int = 0)
     rng = np.random.default_rng(seed)
     sources = [load_motion(n).raw().resampled(fps) for n in available_clips()]
     n = int(seconds * fps) + 1
-    for i in tqdm(range(clips), desc="Writing AMASS-format tree", unit="file"):
+    for i in pbar(range(clips), desc="Writing AMASS-format tree", unit="file"):
         src = sources[i % len(sources)]
         start = rng.integers(0, max(src.num_frames - n, 1))
         piece = src.rotated_yaw(rng.uniform(-np.pi, np.pi))

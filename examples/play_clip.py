@@ -17,10 +17,10 @@ from pathlib import Path
 import smpl_envs  # noqa: F401  (selects a headless GL backend before mujoco loads)
 import mujoco
 import numpy as np
-from tqdm import tqdm
 
 from smpl_envs.humanoid import build_humanoid
 from smpl_envs.motion import available_clips, load_motion
+from smpl_envs.progress import pbar
 from smpl_envs.render import FrameRenderer, write_strip, write_video
 
 
@@ -35,7 +35,7 @@ def kinematic_frames(model, motion, renderer):
 
 def physics_frames(model, motion, renderer):
     """Open-loop PD tracking; also yields the mean body distance to the reference (m)."""
-    substeps = round(1.0 / (motion.fps * model.opt.timestep))  # 4 at 1/120 s (README, "Timing")
+    substeps = round(1.0 / (motion.fps * model.opt.timestep))  # 4 at 1/120 s (docs/humanoid.md, "Timing")
     data = mujoco.MjData(model)
     data.qpos[:], data.qvel[:] = motion.qpos[0], motion.qvel[0]
     mujoco.mj_forward(model, data)
@@ -56,9 +56,9 @@ def play(clip: str, out: Path, mode: str, width: int, height: int, strip_frames:
 
     def frames():
         with FrameRenderer(model, width, height) as renderer:
-            pbar = tqdm(frames_fn(model, motion, renderer), total=motion.num_frames,
-                        desc=f"{motion.name} ({mode})", unit="frame")
-            for t, (frame, err) in enumerate(pbar):
+            bar = pbar(frames_fn(model, motion, renderer), total=motion.num_frames,
+                       desc=f"{motion.name} ({mode})", unit="frame")
+            for t, (frame, err) in enumerate(bar):
                 errors.append(err)
                 if t in keep:
                     strip.append(frame[:, width // 6: width - width // 6])  # trim empty sides

@@ -5,10 +5,11 @@ import os as _os
 # MuJoCo picks its OpenGL backend when it is first imported. On a server (no display) choose the
 # headless EGL backend unless the user chose one, so rendering just works; import smpl_envs before
 # mujoco for this to take effect.
-if "MUJOCO_GL" not in _os.environ and not (_os.environ.get("DISPLAY") or _os.environ.get("WAYLAND_DISPLAY")):
+GL_CHOSEN_HERE = "MUJOCO_GL" not in _os.environ and not (_os.environ.get("DISPLAY") or _os.environ.get("WAYLAND_DISPLAY"))
+if GL_CHOSEN_HERE:
     _os.environ["MUJOCO_GL"] = "egl"
 
-__version__ = "0.1.0"
+__version__ = "0.1.0"  # the package version (pyproject.toml reads it here)
 
 # Registering by string (ENV_IDS) keeps `import smpl_envs` light: MuJoCo and the tasks load on
 # the first gym.make.

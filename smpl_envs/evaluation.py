@@ -47,9 +47,9 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
-from tqdm.auto import tqdm
 
 from . import metrics
+from .progress import pbar
 
 # Env kwargs that only make sense for the env an evaluation builds itself.
 _VEC_ONLY = ("num_envs", "autoreset_mode", "render_mode", "render_world")
@@ -362,7 +362,7 @@ def _clip_queue(policy: Callable, env, num_clips: int, keys: Callable[[dict], tu
     clip[:first] = np.arange(first)
     next_clip = first
     done = record(np.arange(first), info)
-    bar = tqdm(total=num_clips, desc="evaluate", unit="clip", disable=not progress)
+    bar = pbar(total=num_clips, desc="evaluate", unit="clip", disable=not progress)
     try:
         while True:
             # Finish ended clips and refill those worlds; a clip may end on its initial frame,
@@ -425,7 +425,7 @@ def _run_episodes(policy: Callable, env, protocol: EpisodeProtocol, episodes: in
     u = getattr(env, "unwrapped", env)
     n, limit = u.num_envs, u.max_episode_steps
     rows: list[dict] = []
-    bar = tqdm(total=episodes, desc="evaluate", unit="episode", disable=not progress)
+    bar = pbar(total=episodes, desc="evaluate", unit="episode", disable=not progress)
     try:
         for wave in range(-(-episodes // n)):
             count = min(n, episodes - len(rows))

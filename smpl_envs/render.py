@@ -106,7 +106,7 @@ def record(env, policy, path: str | Path, *, steps: int | None = None, episodes:
     `steps`), "reward" (total), "returns" (per episode)}.
     """
     import gymnasium as gym
-    from tqdm.auto import tqdm
+    from .progress import pbar
 
     if steps is None and episodes is None:
         raise ValueError("record needs a bound: pass steps=, episodes= or both")
@@ -140,7 +140,7 @@ def record(env, policy, path: str | Path, *, steps: int | None = None, episodes:
         stats = {"frames": 0, "steps": 0, "returns": []}
 
         def frames():
-            bar = tqdm(total=steps, disable=not progress, unit="step", desc=f"recording {path.name}")
+            bar = pbar(total=steps, disable=not progress, unit="step", desc=f"recording {path.name}")
             try:
                 # Check the step bound before each reset, so a rollout that ends exactly on it
                 # does not add a lone reset frame.

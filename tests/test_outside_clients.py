@@ -1,4 +1,4 @@
-"""Outside RL libraries on the suite: each path of the README's "Other RL libraries", run for a
+"""Outside RL libraries on the suite: each path of docs/other-libraries.md, run for a
 few hundred steps with a small update on them. Stable-Baselines3's paths are tested in
 test_wrappers.py (SB3VecEnv on the native vector env) and test_tasks.py / test_envs.py (PPO on
 gym.make ids). A library that is not installed skips its tests, saying so."""

@@ -73,6 +73,16 @@ def readme_block(marker: str) -> str:
 EVALUATE, RECORD = "result = smpl_envs.evaluate(walk", "video = smpl_envs.record("
 
 
+def test_the_docs_show_the_readmes_blocks():
+    # The docs pages repeat the README's blocks of the shipped policy; the README's are run here,
+    # so the copies must be the same code.
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    for page, markers in (("agents.md", (EVALUATE, RECORD)), ("getting-started.md", (EVALUATE,))):
+        text = (docs / page).read_text()
+        for marker in markers:
+            assert f"```python\n{readme_block(marker)}```" in text, (page, marker)
+
+
 def test_readme_evaluates_the_shipped_walk_policy_at_its_real_success(capsys):
     # The README's own lines, no kwargs: the residual policy must run with residual actions.
     namespace = {}

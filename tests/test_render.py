@@ -76,7 +76,8 @@ def test_demo_script_runs(tmp_path):
 
 
 def test_readme_demo_runs(tmp_path):
-    """The README's demo: policy-free rollouts of SMPL/Imitation-v0 with videos and metrics."""
+    """examples/imitation_rollout.py (docs/getting-started.md): policy-free rollouts of SMPL/Imitation-v0
+    with videos and metrics."""
     out = subprocess.run(
         [sys.executable, str(ROOT / "examples" / "imitation_rollout.py"), "jump", "gesture",
          "--out", str(tmp_path), "--size", "160", "120"],

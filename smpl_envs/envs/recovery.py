@@ -61,11 +61,11 @@ import json
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from .. import metrics
 from ..metrics import recovered_within, recovery_frame  # noqa: F401 (also this module's API)
 from ..evaluation import EvalProtocol, EvalResult, check_disabled_autoreset, policy_actions
+from ..progress import pbar
 from .imitation import ImitationVecEnv
 # The rules live in their own module (the imitation env runs them too); their names stay part of
 # this module's API.
@@ -176,7 +176,7 @@ class RecoveryProtocol(EvalProtocol):
         u = getattr(env, "unwrapped", env)
         n, limit = u.num_envs, u.max_episode_steps
         rows = []
-        bar = tqdm(total=options["trials"] * len(self.kinds), desc="evaluate", unit="trial", disable=not progress)
+        bar = pbar(total=options["trials"] * len(self.kinds), desc="evaluate", unit="trial", disable=not progress)
         try:
             for i, kind in enumerate(self.kinds):
                 done = 0

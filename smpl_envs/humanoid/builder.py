@@ -20,7 +20,7 @@ from .skeleton import (
     Skeleton, anatomical_limits,
 )
 
-PHYSICS_TIMESTEP = 1.0 / 120.0  # measured: stands at zero action and runs fast (README, benchmarks)
+PHYSICS_TIMESTEP = 1.0 / 120.0  # measured: stands at zero action and runs fast (docs/humanoid.md, "Timing")
 ARMATURE = 0.02
 FRICTION = (1.0, 0.005, 0.0001)
 

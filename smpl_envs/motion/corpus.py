@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from tqdm.auto import tqdm
 
+from ..progress import pbar
 from .motion import RawMotion
 from .plausibility import check_motion
 from . import procedural as syn
@@ -494,7 +494,7 @@ def generate(spec: str = "corpus:train", seed: int = DEFAULT_SEED, progress: boo
     split, families = parse(spec)
     jobs = [(f, i) for f in families for i in range(max(1, int(round(getattr(FAMILIES[f], split) * scale))))]
     raws, records = [], []
-    for family, i in tqdm(jobs, desc=f"generating {spec}", disable=not progress, unit="clip"):
+    for family, i in pbar(jobs, desc=f"generating {spec}", disable=not progress, unit="clip"):
         raw, rec = make_clip(seed, split, family, i)
         raws.append(raw)
         records.append(rec)
@@ -528,7 +528,7 @@ def write_manifest(path, spec: str, seed: int, records: list[ClipRecord]) -> Non
 
 
 def summary(records: list[ClipRecord]) -> list[dict]:
-    """Per family: clips, hours and frames, as the README's table shows them."""
+    """Per family: clips, hours and frames, as docs/corpus.md's table shows them."""
     rows = []
     for fam in FAMILIES.values():
         recs = [r for r in records if r.family == fam.name]
@@ -541,7 +541,7 @@ def summary(records: list[ClipRecord]) -> list[dict]:
 
 
 def table(records: list[ClipRecord]) -> str:
-    """The README's table (markdown): per family, clips and hours of each split, ranges, and the
+    """docs/corpus.md's table (markdown): per family, clips and hours of each split, ranges, and the
     bands only the test split draws from."""
     lines = ["| family | group | train clips | train h | test clips | test h | what it holds | held out for test |",
              "|---|---|---|---|---|---|---|---|"]

@@ -19,10 +19,10 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from ..features import BodyState, amp_features, rotmat_from_quat, xp
 from ..humanoid.skeleton import MEAN_SKELETON, NUM_BODIES, NUM_HINGES, PARENTS, Skeleton
+from ..progress import pbar
 from ..rotations import quat_apply, quat_inv, quat_mul, quat_slerp, yaw_quat
 from .kinematics import Segments
 from .loaders import MOTION_SUFFIXES, MotionFileError, ShapeOnlyFile, read_motion_file
@@ -546,7 +546,7 @@ def cache_dir() -> Path:
 
 def _load_files(paths, skeleton, progress) -> tuple[list[RawMotion], list[tuple[str, str]]]:
     raws, errors = [], []
-    for path in tqdm(paths, desc="Loading motions", unit="file", disable=not progress):
+    for path in pbar(paths, desc="Loading motions", unit="file", disable=not progress):
         try:
             raws += [r.resampled(FPS) for r in read_motion_file(path, skeleton)]
         except ShapeOnlyFile:

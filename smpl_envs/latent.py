@@ -37,8 +37,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from .envs.base import PROPRIO_DIM
+from .features import SELF_OBS_LAYOUT, layout_size
 
+# As envs.base has it; not imported from there, which reaches this module (base -> render -> wrappers).
+PROPRIO_DIM = layout_size(SELF_OBS_LAYOUT)
 FORMAT = "smpl-envs-latent/1"
 LOGVAR_RANGE = (-5.0, 2.0)  # log-variances are clamped here (PULSE's code)
 _ACTIVATIONS = {"relu": nn.ReLU, "elu": nn.ELU, "silu": nn.SiLU, "tanh": nn.Tanh, "gelu": nn.GELU}

@@ -28,13 +28,22 @@ from smpl_envs.wrappers import LatentAction, LatentActionVec
 ID = "SMPL/Imitation-v0"
 TINY_NETS = {"encoder_hidden": [64], "prior_hidden": [64], "decoder_hidden": [128]}
 SMALL = dict(n_steps=16, batch_size=64, n_epochs=2, seed=0, verbose=0, device="cpu")
-CLI_QUIET = ["--no-progress", "--quiet", "--threads", "1"]
+CLI_QUIET = ["--no-progress", "--threads", "1"]
+TRAIN_QUIET = [*CLI_QUIET, "--quiet"]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_torch_thread():
+    # Small networks beside the simulation: a second torch thread only contends for the cores
+    # (a distillation step measured 10x slower with two on a loaded 2-core box). conftest puts
+    # the setting back after the module.
+    torch.set_num_threads(1)
 
 
 def tiny_pulse(**kwargs) -> PULSE:
     """A student of the shipped clips policy (a residual tracker) on the walk clip."""
-    return PULSE(ID, teacher="clips", n_envs=4, env_kwargs={"motions": "walk"}, policy_kwargs=TINY_NETS,
-                 **{**SMALL, **kwargs})
+    return PULSE(ID, teacher="clips", n_envs=4, env_kwargs={"motions": "walk"},
+                 **{"policy_kwargs": TINY_NETS, **SMALL, **kwargs})
 
 
 @pytest.fixture(scope="module")
@@ -215,6 +224,7 @@ def test_the_checkpoint_s_decoder_is_the_policy_s(pulse_path):
         LatentDecoder.from_checkpoint(agents.recipes.find_checkpoint("walk"))
 
 
+@pytest.mark.slow  # Recovery-v0 builds its fallen states (~4 s)
 def test_every_task_s_observation_starts_with_the_self_observation():
     # What the prior and the decoder read of any task: its first 358 columns are the self
     # observation of the simulated bodies (Terrain: root height above the ground under it).
@@ -372,7 +382,7 @@ def test_a_latent_task_checkpoint_trains_evaluates_records_and_generates_on_the_
                  "--set", "env.num_envs=2", "--set", "agent.hyperparams.n_steps=16", "--set",
                  "agent.hyperparams.batch_size=32", "--set", "train.total_timesteps=64", "--set", "eval.every=0",
                  "--set", "eval.options.episodes=2", "--set", "eval.num_envs=2", "--set", "video.steps=0",
-                 *CLI_QUIET]) == 0
+                 *TRAIN_QUIET]) == 0
     config = yaml.safe_load((run / "config.yaml").read_text())
     assert config["agent"]["policy"]["class"] == "LatentActorCritic"
     assert main(["eval", str(run), "--episodes", "2", "--num-envs", "2", "--out", str(tmp_path / "e.json"),
@@ -397,11 +407,11 @@ def test_pulse_trains_evaluates_and_records_on_the_command_line(tmp_path):
                  "--set", "agent.policy.kwargs.decoder_hidden=[32]", "--set", "agent.hyperparams.n_steps=16",
                  "--set", "agent.hyperparams.batch_size=32", "--set", "train.total_timesteps=64",
                  "--set", "eval.every=0", "--set", "eval.motions=walk", "--set", "eval.num_envs=1",
-                 "--set", "video.steps=0", *CLI_QUIET]) == 0
-    result = yaml.safe_load((run / "eval.json").read_text())
-    assert "success_rate" in str(result) or "success" in str(result)
+                 "--set", "video.steps=0", *TRAIN_QUIET]) == 0
+    summary = yaml.safe_load((run / "eval.json").read_text())["summary"]  # the imitation protocol's
+    assert 0.0 <= summary["success_rate"] <= 1.0 and summary["clips"] == 1
     assert main(["record", str(run), "--steps", "5", "--out", str(tmp_path / "pulse.mp4"), *CLI_QUIET]) == 0
-    assert main(["train", "--resume", str(run), "--set", "train.total_timesteps=96", *CLI_QUIET]) == 0
+    assert main(["train", "--resume", str(run), "--set", "train.total_timesteps=96", *TRAIN_QUIET]) == 0
     assert read_checkpoint(run / "checkpoints" / "last.pt")["num_timesteps"] == 96
     with pytest.raises(SystemExit):
         main(["generate", str(agents.recipes.find_checkpoint("walk")), "--seconds", "1", *CLI_QUIET])

@@ -655,7 +655,7 @@ def generate_checkpoint(target: str | Path, *, which: str = "best", seconds: flo
     owner = agent if hasattr(agent, "latent_decoder") else agent.policy
     decoder = getattr(owner, "latent_decoder", None)
     if decoder is None:
-        raise RecipeError(f"{ckpt} holds a {type(agent.policy).__name__}, which has no latent space; give a PULSE "
+        raise RecipeError(f"{ckpt}: its policy ({type(agent.policy).__name__}) has no latent space; give a PULSE "
                           "checkpoint (or a latent-task policy)")
     if decoder.settings is None and agent.env_id is not None:  # a latent-task policy: its env's control period
         decoder.settings = {"substeps": policy_settings.trained_settings(agent.env_id, agent.env_kwargs)["substeps"]}

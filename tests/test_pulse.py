@@ -354,6 +354,20 @@ def test_a_latent_policy_acts_through_the_frozen_decoder_and_reloads(pulse_path,
     model.close()
 
 
+def test_amp_trains_a_latent_policy_too(pulse_path, tmp_path):
+    path, _ = pulse_path
+    model = agents.AMP("SMPL/Speed-v0", n_envs=2, env_kwargs={"motions": ["walk", "run"]}, policy=LatentActorCritic,
+                       policy_kwargs={"pulse": load_policy(path), "actor_hidden": [32], "critic_hidden": [32]},
+                       disc_hidden=[16], replay_size=100, disc_batch_size=16, **SMALL)
+    model.learn(32, progress_bar=False)
+    assert model.rollout_buffer.actions.shape == (16, 2, 32)
+    loaded = agents.load(model.save(tmp_path / "amp.pt"), device="cpu")
+    obs = speed_obs(2)
+    assert isinstance(loaded.policy, LatentActorCritic)
+    np.testing.assert_array_equal(loaded.predict(obs)[0], model.predict(obs)[0])
+    model.close()
+
+
 def test_the_latent_recipes_resolve(pulse_path):
     path, _ = pulse_path
     over = [f"agent.policy.kwargs.pulse.checkpoint={path}"]

@@ -7,7 +7,7 @@
     action, _ = model.predict(obs, deterministic=True)
 
 The pieces, for agents and policies built on this machinery: the on-policy base
-(`OnPolicyAlgorithm`, its settings `OnPolicyConfig`; PPO and AMP are subclasses), settings
+(`OnPolicyAlgorithm`, its settings `OnPolicyConfig`; PPO, AMP and PULSE are subclasses), settings
 dataclasses (`PPOConfig`, `AMPConfig`), policies as plug-ins (`Policy`, the default
 `ActorCritic`, `register_policy`, `load_policy` for a checkpoint's frozen policy), and rollouts
 apart from the update (`RolloutBuffer`, `RolloutCollector`, `RolloutHooks`).
@@ -20,13 +20,15 @@ from .amp import AMP, AMPConfig
 from .callbacks import Callback, CallbackList, CheckpointCallback, EvalCallback
 from .checkpoint import load_checkpoint
 from .logger import Logger
+from .latent_policy import LatentActorCritic
 from .networks import ActorCritic, Policy
 from .on_policy import OnPolicyAlgorithm, OnPolicyConfig
 from .policies import PolicyClassError, load_policy, register_policy
 from .ppo import PPO, PPOConfig
+from .pulse import PULSE, PULSEConfig, PULSEPolicy
 from .rollout import RolloutBuffer, RolloutCollector, RolloutHooks
 
-AGENTS = {"PPO": PPO, "AMP": AMP}
+AGENTS = {"PPO": PPO, "AMP": AMP, "PULSE": PULSE}
 
 
 def load(path: str | Path, env=None, **kwargs):
@@ -38,6 +40,7 @@ def load(path: str | Path, env=None, **kwargs):
     return AGENTS[name].load(path, env=env, **kwargs)
 
 
-__all__ = ["PPO", "AMP", "AGENTS", "load", "Callback", "CallbackList", "CheckpointCallback", "EvalCallback",
+__all__ = ["PPO", "AMP", "PULSE", "AGENTS", "PULSEConfig", "PULSEPolicy", "LatentActorCritic",
+           "load", "Callback", "CallbackList", "CheckpointCallback", "EvalCallback",
            "Logger", "OnPolicyAlgorithm", "OnPolicyConfig", "PPOConfig", "AMPConfig", "Policy", "ActorCritic",
            "PolicyClassError", "register_policy", "load_policy", "RolloutBuffer", "RolloutCollector", "RolloutHooks"]

@@ -7,6 +7,7 @@
     smpl-envs train --resume runs/imitation_ppo-<time> --set train.total_timesteps=8e6
     smpl-envs eval runs/imitation_ppo-<time> --motions walk run
     smpl-envs record runs/imitation_ppo-<time> --steps 600
+    smpl-envs generate pulse --seconds 20                # a PULSE prior's motion, no task
     smpl-envs plot runs/imitation_ppo-<time>
     smpl-envs recipes                                   # the shipped recipes, one line each
     smpl-envs info                                      # versions, GL backend, devices: for bug reports
@@ -110,6 +111,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="auto")
     p.set_defaults(func=cmd_record)
 
+    p = sub.add_parser("generate", parents=[common], help="record a PULSE prior driving the humanoid (mp4)",
+                       description="Sample z from a PULSE prior every step, decode it, record an mp4: motion with no task.")
+    p.add_argument("target", metavar="RUN_OR_CHECKPOINT", help="a PULSE run, checkpoint or shipped name (pulse)")
+    p.add_argument("--seconds", type=float, default=20.0, help="video length in seconds (20)")
+    p.add_argument("--seed", type=int, default=0, help="seeds the first reset and the prior's noise (0)")
+    p.add_argument("--noise-scale", type=float, default=1.0,
+                   help="multiplies the prior's std (1: samples of the prior; 0: its mean)")
+    p.add_argument("--motions", help="the clip whose first frame is the start pose (stand)")
+    p.add_argument("--out", type=Path, help="mp4 path (default: RUN/videos/<checkpoint>_generate.mp4)")
+    p.add_argument("--checkpoint", choices=("best", "last"), default="best")
+    p.add_argument("--device", default="auto")
+    p.set_defaults(func=cmd_generate)
+
     p = sub.add_parser("plot", parents=[common], help="draw a run's learning curves to a PNG")
     p.add_argument("run", type=Path, metavar="RUN")
     p.add_argument("--out", type=Path, help="PNG path (default: RUN/curves.png)")
@@ -143,6 +157,12 @@ def cmd_eval(args) -> int:
 def cmd_record(args) -> int:
     return run.record_checkpoint(args.target, which=args.checkpoint, steps=args.steps, motions=args.motions,
                                  out=args.out, seed=args.seed, device=args.device, progress=not args.no_progress)
+
+
+def cmd_generate(args) -> int:
+    return run.generate_checkpoint(args.target, which=args.checkpoint, seconds=args.seconds, seed=args.seed,
+                                   noise_scale=args.noise_scale, motions=args.motions, out=args.out,
+                                   device=args.device, progress=not args.no_progress)
 
 
 def cmd_plot(args) -> int:

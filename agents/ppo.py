@@ -36,7 +36,9 @@ class PPOConfig(OnPolicyConfig):
     vf_coef: float = 1.0
     """value-loss weight (PHC: 5)"""
     bounds_loss_coef: float = 0.0
-    """penalty on action means beyond +-1.1 (PHC: 10)"""
+    """penalty on action means beyond +-bounds_loss_limit (PHC: 10)"""
+    bounds_loss_limit: float = 1.1
+    """where that penalty starts (PHC: 1.1; PULSE's latent tasks: 1)"""
     target_kl: float | None = None
     """stop an update's epochs early once the approximate KL exceeds 1.5x this"""
     normalize_advantage: bool = True
@@ -78,7 +80,8 @@ class PPO(OnPolicyAlgorithm):
 
                 entropy = ev.entropy.mean()
                 mu = ev.mean
-                bounds_loss = ((mu - 1.1).clamp(min=0).square() + (mu + 1.1).clamp(max=0).square()).sum(-1).mean()
+                bound = cfg.bounds_loss_limit
+                bounds_loss = ((mu - bound).clamp(min=0).square() + (mu + bound).clamp(max=0).square()).sum(-1).mean()
                 loss = (policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
                         + cfg.bounds_loss_coef * bounds_loss)
 

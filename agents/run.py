@@ -635,6 +635,44 @@ def record_checkpoint(target: str | Path, *, which: str = "best", steps: int | N
     return 0
 
 
+# ---------------------------------------------------------------------------------------- generation
+def generate_checkpoint(target: str | Path, *, which: str = "best", seconds: float = 20.0, seed: int = 0,
+                        noise_scale: float = 1.0, motions: str | None = None, out: Path | None = None,
+                        device: str = "auto", progress: bool = True) -> int:
+    """An mp4 of the PULSE prior of `target` (as `evaluate_checkpoint` finds it: a PULSE run or
+    checkpoint, or a latent-task policy holding one) driving the humanoid with no task, z
+    sampled every step (`smpl_envs.render.generate`). `out` defaults to
+    RUN/videos/<checkpoint>_generate.mp4 (beside the checkpoint for a lone file). Returns 0."""
+    from smpl_envs import policy_settings
+    from smpl_envs.render import generate
+
+    if not seconds > 0:
+        raise RecipeError(f"--seconds must be positive, got {seconds}")
+    if not noise_scale >= 0:
+        raise RecipeError(f"--noise-scale must be >= 0, got {noise_scale}")
+    agent, ckpt, run, _ = _load_target(target, which, device)
+    # A PULSE agent's decoder knows the settings of its env; a latent-task policy's gets its task's.
+    owner = agent if hasattr(agent, "latent_decoder") else agent.policy
+    decoder = getattr(owner, "latent_decoder", None)
+    if decoder is None:
+        raise RecipeError(f"{ckpt}: its policy ({type(agent.policy).__name__}) has no latent space; give a PULSE "
+                          "checkpoint (or a latent-task policy)")
+    if decoder.settings is None and agent.env_id is not None:  # a latent-task policy: its env's control period
+        decoder.settings = {"substeps": policy_settings.trained_settings(agent.env_id, agent.env_kwargs)["substeps"]}
+    given_out = out is not None
+    if out is None:
+        name = f"{ckpt.stem}_generate.mp4"
+        out = run / "videos" / name if run is not None else ckpt.with_name(name)
+    check_writable(out, _output_option(given_out))  # before the video renders
+    try:
+        info = generate(decoder, out, seconds=seconds, seed=seed, noise_scale=noise_scale,
+                        **({"motions": motions} if motions else {}), progress=progress)
+    except ValueError as e:  # a motion that does not exist, a decoder the env cannot take
+        raise RecipeError(str(e)) from None
+    print(f"{info['path']} ({info['steps']} steps, {info['episodes']} episode(s))")
+    return 0
+
+
 # ---------------------------------------------------------------------------------------- helpers
 def _load_target(target: str | Path, which: str, device: str) -> tuple[Any, Path, Path | None, dict | None]:
     """(agent without an env, its checkpoint, its run directory or None, the run's config or None)."""
@@ -662,6 +700,7 @@ def _get_dotted(tree: dict, key: str) -> Any:
     return tree
 
 
-__all__ = ["train", "TrainOptions", "evaluate_checkpoint", "record_checkpoint", "new_agent", "with_checkpoints_loaded",
+__all__ = ["train", "TrainOptions", "evaluate_checkpoint", "record_checkpoint", "generate_checkpoint", "new_agent",
+           "with_checkpoints_loaded",
            "evaluate_agent", "record_video", "Evaluator", "WallClockBudget", "summary_metrics", "FIXED_ON_RESUME",
            "INTERRUPTED", "TERMINATED", "DISK_FULL", "print_error", "no_space_message"]

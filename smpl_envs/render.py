@@ -168,6 +168,34 @@ def record(env, policy, path: str | Path, *, steps: int | None = None, episodes:
             "episodes": len(stats["returns"]), "reward": sum(stats["returns"]), "returns": stats["returns"]}
 
 
+def generate(decoder, path: str | Path, *, seconds: float = 20.0, seed: int | None = 0, noise_scale: float = 1.0,
+             env_id: str = "SMPL/Speed-v0", motions="stand", fps: float | None = None, progress: bool = True,
+             **make_kwargs) -> dict:
+    """An mp4 at `path` of the humanoid driven by a PULSE prior with no task: z sampled from the
+    prior every step (`latent.PriorSampler`: seeded, `noise_scale` x the prior's std; 0 acts
+    its mean), decoded by `decoder` (a PULSE checkpoint path or a `latent.LatentDecoder`).
+
+    `seconds` (x 30 steps) of one `env_id` world, whose goal goes unused and unseen (the prior
+    and the decoder read only the self observation; markers hidden), from the first frame of
+    `motions`; a fall ends the episode and the next starts. Returns `record`'s summary."""
+    import gymnasium as gym
+
+    from .latent import PriorSampler, as_latent_decoder
+    from .wrappers import LatentAction
+
+    steps = int(round(seconds * 30))
+    if steps < 1:
+        raise ValueError(f"seconds must be at least 1/30, got {seconds!r}")
+    decoder = as_latent_decoder(decoder)
+    kwargs = {"motions": motions, "start": "beginning", "show_markers": False, **make_kwargs}
+    env = LatentAction(gym.make(env_id, render_mode="rgb_array", max_episode_steps=steps, **kwargs), decoder)
+    try:
+        return record(env, PriorSampler(decoder, seed, noise_scale), path, steps=steps, episodes=None, fps=fps,
+                      seed=seed, progress=progress)
+    finally:
+        env.close()
+
+
 def _trained_make_kwargs(env_id: str, trained_id: str | None, trained: dict, make_kwargs: dict,
                          override: Iterable[str]) -> dict:
     """gym.make kwargs for a video of a policy trained on `trained_id` with env kwargs `trained`."""

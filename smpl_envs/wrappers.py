@@ -23,6 +23,13 @@ NumPy (the evaluation protocols, other libraries). The data crosses from the dev
 so training loops that can take tensors should use the env itself::
 
     env = NumpyVecEnv(gym.make_vec("SMPL/Imitation-v0", num_envs=1024, backend="warp", device="cuda"))
+
+`LatentAction` gives any task PULSE's latent action space: the action becomes a in R^32,
+decoded as D(s_p, mu_prior(s_p) + a) into the humanoid's 69 numbers by a PULSE checkpoint's
+frozen prior and decoder (`smpl_envs.latent`), so any RL library learns a task in it::
+
+    env = LatentAction(gym.make("SMPL/Speed-v0"), "agents/pretrained/pulse.pt")
+    venv = LatentAction(gym.make_vec("SMPL/Speed-v0", num_envs=64), "agents/pretrained/pulse.pt")
 """
 from __future__ import annotations
 
@@ -32,7 +39,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-__all__ = ["SB3VecEnv", "NumpyVecEnv"]
+__all__ = ["SB3VecEnv", "NumpyVecEnv", "LatentAction", "LatentActionVec"]
 
 
 def _numpy(x):
@@ -57,6 +64,114 @@ class NumpyVecEnv(gym.vector.VectorWrapper):
         if name.startswith("_"):
             raise AttributeError(name)
         return getattr(self.env, name)
+
+class _LatentMap:
+    """What the one-world and the vector LatentAction share: the decoder, the checks of the env
+    it drives, and the map from latent to env actions on the last observation."""
+
+    def _setup(self, env, decoder, device) -> None:
+        from . import policy_settings
+        from .env_ids import ENV_IDS
+        from .latent import as_latent_decoder
+
+        env_id = policy_settings.env_id_of(env)
+        if env_id is None or env_id.split(":", 1)[-1] not in ENV_IDS:
+            raise ValueError("LatentAction drives an smpl_envs task (its observation starts with the self observation "
+                             f"the decoder reads); this env is {env_id or type(env.unwrapped).__name__}")
+        self.decoder = as_latent_decoder(decoder)
+        box = getattr(env, "single_action_space", env.action_space)
+        if box.shape != (self.decoder.action_dim,) or not (np.all(box.low == -1) and np.all(box.high == 1)):
+            raise ValueError(f"the decoder acts in [-1, 1]^{self.decoder.action_dim}; the env's actions are {box}")
+        # The decoder's actions mean what they meant where it was distilled: the same control
+        # period, absolute PD targets.
+        env_settings = policy_settings.settings_of(env)
+        for name, value in (self.decoder.settings or {}).items():
+            if name in env_settings and env_settings[name] != value:
+                raise ValueError(f"the env runs {name}={env_settings[name]!r}, the decoder was distilled with "
+                                 f"{name}={value!r}; make the env with {name}={value!r}")
+        if env_settings.get("action_mode", "absolute") != "absolute":
+            raise ValueError("the decoder's actions are absolute PD targets; make the env with action_mode='absolute'")
+        self.device = device
+        self._obs = None
+
+    def _box(self, bound: float) -> gym.spaces.Box:
+        if not (np.isfinite(bound) and bound > 0):
+            raise ValueError(f"bound must be a positive finite number, got {bound!r}")
+        return gym.spaces.Box(-float(bound), float(bound), (self.decoder.latent_dim,), np.float32)
+
+    def _decode(self, action):
+        import torch
+
+        if self._obs is None:
+            raise RuntimeError("call reset() before step()")
+        native = isinstance(self._obs, torch.Tensor)
+        obs = self._obs if native else torch.as_tensor(self._obs, dtype=torch.float32)
+        device = self.device or obs.device
+        if next(self.decoder.buffers()).device != torch.device(device):
+            self.decoder.to(device)
+        a = torch.as_tensor(action, dtype=torch.float32, device=device)
+        with torch.no_grad():
+            out = self.decoder(obs.to(device), a)
+        return out.to(obs.device) if native else out.cpu().numpy()
+
+
+class LatentAction(_LatentMap, gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """A task whose action is a latent action a in R^32, neither scaled nor clipped (as PULSE's
+    tasks act): the env gets D(s_p, mu_prior(s_p) + a), computed on the observation the action
+    answers, so a = 0 acts the prior's mean.
+
+    `LatentAction(env, decoder, device=None, bound=5.0)`: env a single task env (`gym.make`) or
+    a native vector env (`gym.make_vec`; then the instance is a `LatentActionVec`); decoder a
+    PULSE checkpoint path, a `latent.LatentDecoder`, or an object with one as `latent_decoder`
+    (an agents.PULSE). The env must share the decoder's recorded settings (substeps) and take
+    absolute actions. device: where the decoder runs (default: the observations' device).
+    bound: the half width of the action Box, [-bound, bound]^32. Finite because RL libraries
+    need it (Stable-Baselines3 refuses unbounded Boxes); the wrapper does not clip to it, and
+    5 lies far beyond where PULSE's policies act (a bounds loss keeps their mean within 1)."""
+
+    def __new__(cls, env, *args, **kwargs):
+        if cls is LatentAction and isinstance(env, VectorEnv):
+            return LatentActionVec(env, *args, **kwargs)
+        return super().__new__(cls)
+
+    def __init__(self, env: gym.Env, decoder, device=None, bound: float = 5.0):
+        # Recorded in env.spec, so gym.make(env.spec) (and Gymnasium's env checker) makes it again.
+        gym.utils.RecordConstructorArgs.__init__(self, decoder=decoder, device=device, bound=bound)
+        gym.Wrapper.__init__(self, env)
+        self._setup(env, decoder, device)
+        self.action_space = self._box(bound)
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._obs = obs
+        return obs, info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(self._decode(action))
+        self._obs = obs
+        return obs, reward, terminated, truncated, info
+
+
+class LatentActionVec(_LatentMap, gym.vector.VectorWrapper):
+    """`LatentAction` of a vector env: N worlds, each acting in the latent space, decoded in one
+    batch on the observations the env last returned (NumPy, or tensors of a torch-native env)."""
+
+    def __init__(self, env: VectorEnv, decoder, device=None, bound: float = 5.0):
+        gym.vector.VectorWrapper.__init__(self, env)
+        self._setup(env, decoder, device)
+        self.single_action_space = self._box(bound)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, env.num_envs)
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._obs = obs
+        return obs, info
+
+    def step(self, actions):
+        obs, reward, terminated, truncated, info = self.env.step(self._decode(actions))
+        self._obs = obs
+        return obs, reward, terminated, truncated, info
+
 
 # Keys of a SameStep info dict that describe the finished episode rather than the current one.
 _FINAL_KEYS = ("final_obs", "final_info")

@@ -45,8 +45,11 @@ x that range x a; the zero action then tracks the reference with the PD controll
 `env.unwrapped.reference_action()` is the action that does so in either mode.
 
 `info` also carries the metrics' raw inputs (`body_pos`, `ref_body_pos`), `motion_id`,
-`motion_time` (the reference frame being tracked), `diverged`, and `amp_obs`, the AMP
-discriminator features of the step (232).
+`motion_time` (the reference frame being tracked), `diverged`, `amp_obs`, the AMP
+discriminator features of the step (232), and `next_ref_dof_pos`, the joint angles (69) of the
+reference frame the observation's goal shows: the base of residual actions, with which
+`reference.residual_to_absolute` turns a residual action into the absolute one of the same PD
+targets (a residual teacher's labels for an absolute student).
 
 Evaluation (`smpl_envs.evaluate`, `smpl-envs eval`): PHC's protocol, every clip once from its
 first frame; success, E_g-mpjpe, E_mpjpe, E_acc, E_vel (`smpl_envs.evaluation.ClipProtocol`).
@@ -218,7 +221,8 @@ class ImitationVecEnv(HumanoidVecEnv):
     def _task_info(self, body):
         copy = self.backend.copy
         info = {"motion_id": copy(self.ref.motion_id), "motion_time": self.ref.motion_time(),
-                "ref_body_pos": copy(self.ref.current().pos)}  # a copy: the array is cached
+                "ref_body_pos": copy(self.ref.current().pos),  # a copy: the array is cached
+                "next_ref_dof_pos": self.backend.float32(self.ref.next_dof_pos())}
         if self.recovery is not None:
             info.update(self.recovery.info())
         return info

@@ -34,6 +34,17 @@ def check_action_mode(action_mode: str, residual_scale: float) -> float:
     return scale
 
 
+def residual_to_absolute(actions, ref_dof_pos, action_scale, residual_scale: float):
+    """The absolute-mode actions that give the PD targets residual-mode `actions` (in [-1, 1],
+    clipped as the env clips them) give on top of the reference joint angles `ref_dof_pos`
+    (N, 69; `info["next_ref_dof_pos"]` of the reference-tracking tasks). NumPy or torch.
+
+    What a distillation needs to learn absolute actions, which every task takes, from a
+    residual teacher (agents.PULSE)."""
+    target = ref_dof_pos + actions.clip(-1.0, 1.0) * (residual_scale * action_scale)
+    return target.clip(-action_scale, action_scale) / action_scale
+
+
 class ReferenceTracker:
     """Per-world reference frames of `lib` for `num_worlds` worlds (arrays of shape (N,)).
 
@@ -95,6 +106,10 @@ class ReferenceTracker:
             return actions * action_scale
         target = self.lib.dof_pos[self.next_frame()] + actions * (residual_scale * action_scale)
         return target.clip(-action_scale, action_scale)
+
+    def next_dof_pos(self):
+        """(N, 69) the next reference frame's joint angles: what residual actions add to."""
+        return self.lib.dof_pos[self.next_frame()]
 
     def reference_action(self, action_scale: np.ndarray, mode: str) -> np.ndarray:
         """(N, 69) actions whose PD targets are the next reference frame's joint angles: the

@@ -1,6 +1,7 @@
 """The `smpl-envs` command: train agents from recipes, then evaluate, record and plot their runs.
 
     smpl-envs train demo_walk_ppo                       # runs/demo_walk_ppo-<time>/
+    smpl-envs train recovery_tracker_ppo --init tracker # a new run from another checkpoint's weights
     smpl-envs train imitation_ppo --set env.num_envs=16 --set agent.hyperparams.learning_rate=3e-4
     smpl-envs train imitation_ppo --set agent.policy.kwargs.actor_hidden=[1024,512]
     smpl-envs train imitation_amp --profile paper       # PHC's scale, for a GPU box
@@ -18,6 +19,7 @@ prints the `--resume` command); anything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -69,6 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="delete an existing --run-dir first (default: refuse to mix two runs)")
     p.add_argument("--resume", type=Path, metavar="RUN_DIR",
                    help="continue a run from its checkpoints/last.pt up to train.total_timesteps")
+    p.add_argument("--init", metavar="CHECKPOINT",
+                   help="start the policy from this checkpoint's weights and normalisers (a shipped name, a .pt "
+                        "file or a run directory; fresh optimiser and step count): sets agent.init")
     p.add_argument("--device", help="torch device (auto, cpu, cuda ...); overrides train.device")
     p.add_argument("--quiet", action="store_true", help="no per-iteration log table on stdout")
     p.add_argument("--update-threads", type=int, default=None, metavar="M",
@@ -110,6 +115,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 # ---------------------------------------------------------------------------------------- commands
 def cmd_train(args) -> int:
+    if args.init is not None:
+        if args.resume is not None:
+            raise RecipeError("--init starts a new run from a checkpoint's weights; a resumed run continues its own")
+        args.overrides = [*args.overrides, f"agent.init={json.dumps(args.init)}"]
     return run.train(args.recipe, overrides=args.overrides, profile=args.profile, run_dir=args.run_dir,
                      runs_root=args.runs_root, overwrite=args.overwrite, resume=args.resume, device=args.device,
                      quiet=args.quiet, update_threads=args.update_threads, progress=not args.no_progress)

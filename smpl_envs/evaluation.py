@@ -53,6 +53,8 @@ from . import metrics
 
 # Env kwargs that only make sense for the env an evaluation builds itself.
 _VEC_ONLY = ("num_envs", "autoreset_mode", "render_mode", "render_world")
+# Env kwargs that belong to the training motions: they go where the motions go.
+_MOTION_KWARGS = ("motions", "motion_weights")
 
 
 @dataclass
@@ -113,12 +115,12 @@ class EvalProtocol:
     def eval_kwargs(self, train_kwargs: dict) -> dict:
         """Env kwargs of a training run that carry over to its evaluation (reward weights,
         substeps, action mode ...)."""
-        drop = set(self.train_only_kwargs) | set(_VEC_ONLY) | {"motions"}
+        drop = set(self.train_only_kwargs) | set(_VEC_ONLY) | set(_MOTION_KWARGS)
         return {k: v for k, v in train_kwargs.items() if k not in drop}
 
     def record_kwargs(self, train_kwargs: dict) -> dict:
         """Env kwargs for a video of a training run's policy (one world, as in training)."""
-        return {k: v for k, v in train_kwargs.items() if k not in set(_VEC_ONLY) | {"motions"}}
+        return {k: v for k, v in train_kwargs.items() if k not in set(_VEC_ONLY) | set(_MOTION_KWARGS)}
 
     def run(self, policy: Callable, env, options: dict, progress: bool) -> EvalResult:
         raise NotImplementedError

@@ -80,13 +80,14 @@ class Composer(Policy):
 
     Args (after the spaces): primitives (a list of policies for the env's spaces; a recipe
     names them as {checkpoint: NAME_OR_PATH}), composition ("multiplicative" or "additive"),
-    hidden (C's hidden sizes; PHC: [1024, 512]), critic_hidden, activation, weight_activation
+    actor_hidden (the composer network C's hidden sizes, named as the actor-critic's so profiles
+    rescale both alike; PHC: [1024, 512]), critic_hidden, activation, weight_activation
     ("sigmoid", "relu" or "softplus"), log_std_init (the additive form's fixed log std, and the
     std of a primitive that is not Gaussian over the env's actions), normalize_value.
     """
 
     def __init__(self, obs_dim: int, action_space: gym.spaces.Box | int, *, primitives: Sequence[Policy],
-                 composition: str = "multiplicative", hidden: Sequence[int] = (512, 256),
+                 composition: str = "multiplicative", actor_hidden: Sequence[int] = (512, 256),
                  critic_hidden: Sequence[int] = (512, 256), activation: str = "silu",
                  weight_activation: str = "sigmoid", log_std_init: float = -2.9, normalize_value: bool = True):
         super().__init__(obs_dim, action_space)
@@ -108,7 +109,7 @@ class Composer(Policy):
         self.composition, self.weight_activation = composition, weight_activation
         self.primitives = nn.ModuleList([p.freeze() for p in primitives])
         k = len(primitives)
-        self.weight_net = mlp(self.obs_dim, _sizes("hidden", hidden), k, activation, out_gain=0.01)
+        self.weight_net = mlp(self.obs_dim, _sizes("actor_hidden", actor_hidden), k, activation, out_gain=0.01)
         self.critic = mlp(self.obs_dim, _sizes("critic_hidden", critic_hidden), 1, activation, out_gain=1.0)
         self.value_norm = RunningNorm((), clip=None) if normalize_value else None
         # Fixed, hence a buffer: the additive form's std and a non-Gaussian primitive's.

@@ -52,7 +52,7 @@ def test_the_multiplicative_formula_on_two_known_gaussians():
                                                                               dtype=torch.float64))
     # The same through a Composer over two constant primitives, its weights held at C.
     comp = Composer(3, 2, primitives=[gaussian([0.2, 1.0], [0.1, 0.2]), gaussian([-0.4, 0.0], [0.3, 0.2])],
-                    hidden=[4], critic_hidden=[4])
+                    actor_hidden=[4], critic_hidden=[4])
     comp.weights = lambda obs: w.expand(len(obs), -1)
     dist = comp.action_distribution(torch.zeros(5, 3))
     torch.testing.assert_close(dist.mean, torch.tensor([[-0.1, 0.25]]).expand(5, -1))
@@ -64,11 +64,11 @@ def test_weights_are_non_negative_and_start_as_an_even_mix():
     torch.manual_seed(0)
     obs = torch.randn(64, 3) * 10
     for activation in ("sigmoid", "relu", "softplus"):
-        comp = Composer(3, 2, primitives=[gaussian([0.0, 0.0], [0.1, 0.1])] * 2, hidden=[8], critic_hidden=[4],
+        comp = Composer(3, 2, primitives=[gaussian([0.0, 0.0], [0.1, 0.1])] * 2, actor_hidden=[8], critic_hidden=[4],
                         weight_activation=activation)
         w = comp.weights(obs)
         assert w.shape == (64, 2) and (w >= 0).all()
-    sigmoid = Composer(3, 2, primitives=[gaussian([0.0, 0.0], [0.1, 0.1])] * 2, hidden=[8], critic_hidden=[4])
+    sigmoid = Composer(3, 2, primitives=[gaussian([0.0, 0.0], [0.1, 0.1])] * 2, actor_hidden=[8], critic_hidden=[4])
     assert torch.allclose(sigmoid.weights(obs), torch.tensor(0.5), atol=0.05)  # small last layer
 
 
@@ -83,7 +83,7 @@ def observations(n: int = 6) -> np.ndarray:
 
 @pytest.mark.parametrize("composition", ["multiplicative", "additive"])
 def test_one_hot_weights_reproduce_that_primitive_exactly(composition):
-    comp = Composer(934, 69, primitives=primitives(), composition=composition, hidden=[16], critic_hidden=[16])
+    comp = Composer(934, 69, primitives=primitives(), composition=composition, actor_hidden=[16], critic_hidden=[16])
     obs = torch.as_tensor(observations())
     for k, p in enumerate(comp.primitives):
         one_hot = torch.nn.functional.one_hot(torch.tensor(k), 2).float()
@@ -118,7 +118,7 @@ def trained(tmp_path_factory):
     Path(copy).unlink()  # the composer's checkpoint must not need it
     before = [{k: v.clone() for k, v in p.state_dict().items()} for p in prims]
     model = PPO(ID, n_envs=2, env_kwargs=RESIDUAL_WALK, policy="Composer",
-                policy_kwargs={"primitives": prims, "hidden": [16], "critic_hidden": [16]}, **SMALL)
+                policy_kwargs={"primitives": prims, "actor_hidden": [16], "critic_hidden": [16]}, **SMALL)
     weights = model.policy.weight_net[0].weight.detach().clone()
     model.learn(48, progress_bar=False)
     path = model.save(tmp / "composer.pt")

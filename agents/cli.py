@@ -9,6 +9,8 @@
     smpl-envs eval runs/imitation_ppo-<time> --motions walk run
     smpl-envs record runs/imitation_ppo-<time> --steps 600
     smpl-envs plot runs/imitation_ppo-<time>
+    smpl-envs pmcp pmcp_corpus                          # PMCP's pipeline, runs/pmcp_corpus/; resumes
+    smpl-envs perpetual runs/pmcp_corpus/pmcp.pt        # chained clips, shoves: falls, recoveries
 
 This module parses the command line and hands each command to `agents.run`, which holds what a
 run is (its directory, locking, stopping and resuming, evaluation, videos) and documents it.
@@ -106,6 +108,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="auto")
     p.set_defaults(func=cmd_record)
 
+    p = sub.add_parser("pmcp", parents=[common], help="run (or resume) PHC's progressive pipeline into one directory",
+                       description="PMCP as one command (agents.pmcp): primitives on mined hard clips, the recovery "
+                                   "primitive, the composer; the same command resumes where it stopped.")
+    p.add_argument("recipe", help="pipeline recipe name (tasks/pipelines/<name>.yaml) or YAML file")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a pipeline setting by dotted key, e.g. max_primitives=2 (repeatable)")
+    p.add_argument("--run-dir", type=Path, help="the pipeline's directory (default: RUNS_ROOT/<recipe>)")
+    p.add_argument("--runs-root", type=Path, default=Path("runs"))
+    p.add_argument("--overwrite", action="store_true", help="delete the pipeline's directory first")
+    p.add_argument("--device", help="torch device for every stage (overrides their train.device)")
+    p.add_argument("--quiet", action="store_true", help="no per-iteration log table on stdout")
+    p.add_argument("--update-threads", type=int, default=None, metavar="M")
+    p.set_defaults(func=cmd_pmcp)
+
+    p = sub.add_parser("perpetual", parents=[common], help="perpetual-control test: chained clips, shoves, recovery",
+                       description="A long reference of chained clips in Imitation-v0 with recovery on and random "
+                                   "shoves; counts losses, falls, recoveries and resets (smpl_envs.perpetual).")
+    p.add_argument("target", metavar="RUN_OR_CHECKPOINT")
+    p.add_argument("--motions", nargs="+", help="the clips to chain (default: corpus:test)")
+    p.add_argument("--minutes", type=float, help="length of the reference (default: 5)")
+    p.add_argument("--trials", type=int, help="worlds run at once, each with its own shoves (default: 1)")
+    p.add_argument("--no-shoves", action="store_true", help="no shoves")
+    p.add_argument("--option", dest="options", action="append", default=[], metavar="KEY=VALUE",
+                   help="any other option of smpl_envs.perpetual (shove_every=[10,20], shove_speed=[0.5,1.5] ...)")
+    p.add_argument("--checkpoint", choices=("best", "last"), default="best")
+    p.add_argument("--out", type=Path, help="JSON result path (the table goes next to it as .txt)")
+    p.add_argument("--video", type=Path, help="an mp4 of world 0")
+    p.add_argument("--device", default="auto")
+    p.set_defaults(func=cmd_perpetual)
+
     p = sub.add_parser("plot", parents=[common], help="draw a run's learning curves to a PNG")
     p.add_argument("run", type=Path, metavar="RUN")
     p.add_argument("--out", type=Path, help="PNG path (default: RUN/curves.png)")
@@ -137,6 +169,27 @@ def cmd_eval(args) -> int:
 def cmd_record(args) -> int:
     return run.record_checkpoint(args.target, which=args.checkpoint, steps=args.steps, motions=args.motions,
                                  out=args.out, seed=args.seed, device=args.device, progress=not args.no_progress)
+
+
+def cmd_pmcp(args) -> int:
+    from .pmcp import pmcp
+
+    return pmcp(args.recipe, overrides=args.overrides, run_dir=args.run_dir, runs_root=args.runs_root,
+                overwrite=args.overwrite, device=args.device, quiet=args.quiet, update_threads=args.update_threads,
+                progress=not args.no_progress)
+
+
+def cmd_perpetual(args) -> int:
+    from .pmcp import perpetual_checkpoint
+
+    options = dict(parse_override(o) for o in args.options)
+    motions = args.motions[0] if args.motions and len(args.motions) == 1 else args.motions
+    options.update({k: v for k, v in (("motions", motions), ("minutes", args.minutes), ("trials", args.trials))
+                    if v is not None})
+    if args.no_shoves:
+        options["shoves"] = False
+    return perpetual_checkpoint(args.target, which=args.checkpoint, options=options, out=args.out, video=args.video,
+                                device=args.device, progress=not args.no_progress)
 
 
 def cmd_plot(args) -> int:

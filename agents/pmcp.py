@@ -298,6 +298,8 @@ class Pipeline:
     # --- the run
     def run(self) -> int:
         spec = self.spec
+        if spec["recovery"] is not None and spec["recovery"]["checkpoint"] is not None:
+            find_checkpoint(spec["recovery"]["checkpoint"])  # a missing one fails now, not after the primitives
         p0 = self._stage("primitive0", kind="primitive", index=0, trained_on=None)
         if p0["status"] == "new":
             self._given(p0, spec["primitive0"])

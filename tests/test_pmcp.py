@@ -166,6 +166,12 @@ def test_the_perpetual_test_on_a_tiny_setting(tmp_path):
     calm = tmp_path / "calm.json"
     assert main([*args[:7], "--no-shoves", "--out", str(calm), "--no-progress"]) == 0
     assert json.loads(calm.read_text())["summary"]["shoves"] == 0
+    video = tmp_path / "perpetual.mp4"
+    assert main(["perpetual", "clips", "--motions", "walk", "--minutes", "0.03", "--video", str(video),
+                 "--no-progress"]) == 0
+    import imageio.v3 as iio
+
+    assert sum(1 for _ in iio.imiter(video)) == 55  # the first frame and one per step
 
 
 # ---------------------------------------------------------------------------------------- end to end

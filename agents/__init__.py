@@ -9,7 +9,8 @@
 The pieces, for agents and policies built on this machinery: the on-policy base
 (`OnPolicyAlgorithm`, its settings `OnPolicyConfig`; PPO, AMP and PULSE are subclasses), settings
 dataclasses (`PPOConfig`, `AMPConfig`), policies as plug-ins (`Policy`, the default
-`ActorCritic`, `register_policy`, `load_policy` for a checkpoint's frozen policy), and rollouts
+`ActorCritic`, PMCP's `Composer` over frozen primitives, `register_policy`, `load_policy` for a
+checkpoint's frozen policy), and rollouts
 apart from the update (`RolloutBuffer`, `RolloutCollector`, `RolloutHooks`).
 """
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 from .amp import AMP, AMPConfig
 from .callbacks import Callback, CallbackList, CheckpointCallback, EvalCallback
 from .checkpoint import load_checkpoint
+from .composer import Composer
 from .logger import Logger
 from .latent_policy import LatentActorCritic
 from .networks import ActorCritic, Policy
@@ -43,4 +45,4 @@ def load(path: str | Path, env=None, **kwargs):
 __all__ = ["PPO", "AMP", "PULSE", "AGENTS", "PULSEConfig", "PULSEPolicy", "LatentActorCritic",
            "load", "Callback", "CallbackList", "CheckpointCallback", "EvalCallback",
            "Logger", "OnPolicyAlgorithm", "OnPolicyConfig", "PPOConfig", "AMPConfig", "Policy", "ActorCritic",
-           "PolicyClassError", "register_policy", "load_policy", "RolloutBuffer", "RolloutCollector", "RolloutHooks"]
+           "PolicyClassError", "register_policy", "Composer", "load_policy", "RolloutBuffer", "RolloutCollector", "RolloutHooks"]

@@ -1,6 +1,7 @@
 """The `smpl-envs` command: train agents from recipes, then evaluate, record and plot their runs.
 
     smpl-envs train demo_walk_ppo                       # runs/demo_walk_ppo-<time>/
+    smpl-envs train recovery_tracker_ppo --init tracker # a new run from another checkpoint's weights
     smpl-envs train imitation_ppo --set env.num_envs=16 --set agent.hyperparams.learning_rate=3e-4
     smpl-envs train imitation_ppo --set agent.policy.kwargs.actor_hidden=[1024,512]
     smpl-envs train imitation_amp --profile paper       # PHC's scale, for a GPU box
@@ -11,6 +12,8 @@
     smpl-envs plot runs/imitation_ppo-<time>
     smpl-envs recipes                                   # the shipped recipes, one line each
     smpl-envs info                                      # versions, GL backend, devices: for bug reports
+    smpl-envs pmcp pmcp_corpus                          # PMCP's pipeline, runs/pmcp_corpus/; resumes
+    smpl-envs perpetual runs/pmcp_corpus/pmcp.pt        # chained clips, shoves: falls, recoveries
 
 This module parses the command line and hands each command to `agents.run`, which holds what a
 run is (its directory, locking, stopping and resuming, evaluation, videos) and documents it.
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import json
 import sys
 from pathlib import Path
 
@@ -79,6 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="delete an existing --run-dir first (default: refuse to mix two runs)")
     p.add_argument("--resume", type=Path, metavar="RUN_DIR",
                    help="continue a run from its checkpoints/last.pt up to train.total_timesteps")
+    p.add_argument("--init", metavar="CHECKPOINT",
+                   help="start the policy from this checkpoint's weights and normalisers (a shipped name, a .pt "
+                        "file or a run directory; fresh optimiser and step count): sets agent.init")
     p.add_argument("--device", help="torch device (auto, cpu, cuda ...); overrides train.device")
     p.add_argument("--quiet", action="store_true", help="no per-iteration log table on stdout")
     p.add_argument("--update-threads", type=int, default=None, metavar="M",
@@ -123,6 +130,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", choices=("best", "last"), default="best")
     p.add_argument("--device", default="auto")
     p.set_defaults(func=cmd_generate)
+    p = sub.add_parser("pmcp", parents=[common], help="run (or resume) PHC's progressive pipeline into one directory",
+                       description="PMCP as one command (agents.pmcp): primitives on mined hard clips, the recovery "
+                                   "primitive, the composer; the same command resumes where it stopped.")
+    p.add_argument("recipe", help="pipeline recipe name (tasks/pipelines/<name>.yaml) or YAML file")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a pipeline setting by dotted key, e.g. max_primitives=2 (repeatable)")
+    p.add_argument("--run-dir", type=Path, help="the pipeline's directory (default: RUNS_ROOT/<recipe>)")
+    p.add_argument("--runs-root", type=Path, default=Path("runs"))
+    p.add_argument("--overwrite", action="store_true", help="delete the pipeline's directory first")
+    p.add_argument("--device", help="torch device for every stage (overrides their train.device)")
+    p.add_argument("--quiet", action="store_true", help="no per-iteration log table on stdout")
+    p.add_argument("--update-threads", type=int, default=None, metavar="M")
+    p.set_defaults(func=cmd_pmcp)
+
+    p = sub.add_parser("perpetual", parents=[common], help="perpetual-control test: chained clips, shoves, recovery",
+                       description="A long reference of chained clips in Imitation-v0 with recovery on and random "
+                                   "shoves; counts losses, falls, recoveries and resets (smpl_envs.perpetual).")
+    p.add_argument("target", metavar="RUN_OR_CHECKPOINT")
+    p.add_argument("--motions", nargs="+", help="the clips to chain (default: corpus:test)")
+    p.add_argument("--minutes", type=float, help="length of the reference (default: 5)")
+    p.add_argument("--trials", type=int, help="worlds run at once, each with its own shoves (default: 1)")
+    p.add_argument("--no-shoves", action="store_true", help="no shoves")
+    p.add_argument("--option", dest="options", action="append", default=[], metavar="KEY=VALUE",
+                   help="any other option of smpl_envs.perpetual (shove_every=[10,20], shove_speed=[0.5,1.5] ...)")
+    p.add_argument("--checkpoint", choices=("best", "last"), default="best")
+    p.add_argument("--out", type=Path, help="JSON result path (the table goes next to it as .txt)")
+    p.add_argument("--video", type=Path, help="an mp4 of world 0")
+    p.add_argument("--device", default="auto")
+    p.set_defaults(func=cmd_perpetual)
 
     p = sub.add_parser("plot", parents=[common], help="draw a run's learning curves to a PNG")
     p.add_argument("run", type=Path, metavar="RUN")
@@ -139,6 +175,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 # ---------------------------------------------------------------------------------------- commands
 def cmd_train(args) -> int:
+    if args.init is not None:
+        if args.resume is not None:
+            raise RecipeError("--init starts a new run from a checkpoint's weights; a resumed run continues its own")
+        args.overrides = [*args.overrides, f"agent.init={json.dumps(args.init)}"]
     return run.train(args.recipe, overrides=args.overrides, profile=args.profile, run_dir=args.run_dir,
                      runs_root=args.runs_root, overwrite=args.overwrite, resume=args.resume, device=args.device,
                      quiet=args.quiet, update_threads=args.update_threads, progress=not args.no_progress)
@@ -163,6 +203,25 @@ def cmd_generate(args) -> int:
     return run.generate_checkpoint(args.target, which=args.checkpoint, seconds=args.seconds, seed=args.seed,
                                    noise_scale=args.noise_scale, motions=args.motions, out=args.out,
                                    device=args.device, progress=not args.no_progress)
+def cmd_pmcp(args) -> int:
+    from .pmcp import pmcp
+
+    return pmcp(args.recipe, overrides=args.overrides, run_dir=args.run_dir, runs_root=args.runs_root,
+                overwrite=args.overwrite, device=args.device, quiet=args.quiet, update_threads=args.update_threads,
+                progress=not args.no_progress)
+
+
+def cmd_perpetual(args) -> int:
+    from .pmcp import perpetual_checkpoint
+
+    options = dict(parse_override(o) for o in args.options)
+    motions = args.motions[0] if args.motions and len(args.motions) == 1 else args.motions
+    options.update({k: v for k, v in (("motions", motions), ("minutes", args.minutes), ("trials", args.trials))
+                    if v is not None})
+    if args.no_shoves:
+        options["shoves"] = False
+    return perpetual_checkpoint(args.target, which=args.checkpoint, options=options, out=args.out, video=args.video,
+                                device=args.device, progress=not args.no_progress)
 
 
 def cmd_plot(args) -> int:

@@ -11,6 +11,10 @@ recipe and overrides only what differs (mappings merge key by key, profiles incl
 env.kwargs, agent.policy and eval.options, which are stated whole; anything else is replaced),
 so shared values are written once.
 
+`agent.init: NAME_OR_PATH` (or `{checkpoint: ..., exclude: [...]}`) starts a new run's policy
+from another checkpoint's weights and normalisers (`agents.warm_start`; `train --init`), and
+`train.curriculum` schedules the start mix of a recovery env over training (`agents.curriculum`).
+
 The agent's policy is `agent.policy: {class: NAME, kwargs: {...}}`: a registered policy class
 (`ActorCritic`, the default) or an importable path (`my_package.policies:Composer`) and its
 keyword arguments, where `{checkpoint: NAME_OR_PATH}` stands for another run's or a shipped
@@ -52,9 +56,9 @@ LOCK_NAME = ".lock"  # a live run's hold on its directory (`RunLock`), with its 
 # form here; the hyperparameters are checked against the agent class's constructor instead.
 DEFAULTS: dict[str, dict[str, Any]] = {
     "env": {"id": None, "num_envs": 1, "kwargs": {}},
-    "agent": {"class": None, "policy": None, "hyperparams": {}},
+    "agent": {"class": None, "policy": None, "hyperparams": {}, "init": None},
     "train": {"total_timesteps": None, "max_minutes": None, "seed": 0, "checkpoint_every": 0, "log_interval": 1,
-              "device": "auto"},
+              "device": "auto", "curriculum": None},
     "eval": {"every": 0, "num_envs": 8, "motions": None, "options": {}},
     "video": {"steps": 300, "fps": None, "motions": None},
 }
@@ -307,6 +311,7 @@ def _check_agent(agent: dict) -> None:
             raise RecipeError(f"agent.hyperparams.{key} is not a hyperparameter here: set it with "
                               f"{RESERVED_HYPERPARAMS[key]}")
     agent["policy"] = _check_policy(agent, AGENTS[name])
+    _check_init(agent)
     hp = agent["hyperparams"]
     accepted = accepted_hyperparams(AGENTS[name])
     unknown = sorted(set(hp) - accepted)
@@ -351,6 +356,17 @@ def _check_policy(agent: dict, agent_class) -> dict:
                               f"{name} takes {', '.join(accepted) or 'none'}")
     _check_checkpoint_references(kwargs, "agent.policy.kwargs")
     return {"class": name, "kwargs": kwargs}
+
+
+def _check_init(agent: dict) -> None:
+    """agent.init: a checkpoint to start the policy from (`agents.warm_start`). Whether it exists
+    is asked when the agent is built (a recipe may name a policy that a run will ship later)."""
+    from .warm_start import init_spec
+
+    try:
+        init_spec(agent["init"])
+    except ValueError as e:
+        raise RecipeError(str(e)) from None
 
 
 def _check_checkpoint_references(value: Any, where: str) -> None:
@@ -417,6 +433,13 @@ def _check_budgets(recipe: dict) -> None:
             ev["options"] = protocol_for(env_id).check_options(ev["options"])
         except ValueError as e:
             raise RecipeError(f"eval.options: {e}") from None
+    if train["curriculum"] is not None:
+        from .curriculum import check_curriculum
+
+        try:
+            train["curriculum"] = check_curriculum(train["curriculum"])
+        except ValueError as e:
+            raise RecipeError(f"train.curriculum: {e}") from None
     _positive_int(video, "video", "steps", allow_zero=True)
     if video["fps"] is not None and (not isinstance(video["fps"], (int, float)) or video["fps"] <= 0):
         raise RecipeError(f"video.fps must be a positive number or null, got {video['fps']!r}")

@@ -50,6 +50,7 @@ from .plot import EmptyLogError, plot_run, read_progress
 from .recipes import (LOCK_NAME, RecipeError, RunLock, apply_overrides, check_run_dir_free, check_writable,
                       find_checkpoint, in_use_message, is_unused_run_dir, live_run_pid, load_recipe, make_run_dir,
                       read_config, run_dir_of)
+from .warm_start import init_policy, init_spec
 
 # Settings a checkpoint fixes: its weights only fit these.
 FIXED_ON_RESUME = ("env.id", "agent.class", "agent.policy") + tuple(
@@ -74,8 +75,9 @@ def no_space_message(e: OSError) -> str:
 # ---------------------------------------------------------------------------------------- agents
 def new_agent(recipe: dict, env=None, **options):
     """A new agent as the resolved `recipe` describes it: its class, policy (checkpoint
-    references loaded, frozen) and hyperparameters, on `env` (default: the recipe's env id with
-    env.num_envs worlds and env.kwargs), seeded with train.seed on train.device. `options`:
+    references loaded, frozen; agent.init's weights copied in) and hyperparameters, on `env`
+    (default: the recipe's env id with env.num_envs worlds and env.kwargs), seeded with
+    train.seed on train.device. `options`:
     any other constructor argument (verbose, log_dir, tensorboard, update_threads, device ...)."""
     from . import AGENTS
 
@@ -85,9 +87,21 @@ def new_agent(recipe: dict, env=None, **options):
     else:
         where = {}
     options = {"seed": train["seed"], "device": train["device"], **options}
-    return AGENTS[spec["class"]](env, **where, policy=spec["policy"]["class"],
-                                 policy_kwargs=with_checkpoints_loaded(spec["policy"]["kwargs"]),
-                                 **spec["hyperparams"], **options)
+    agent = AGENTS[spec["class"]](env, **where, policy=spec["policy"]["class"],
+                                  policy_kwargs=with_checkpoints_loaded(spec["policy"]["kwargs"]),
+                                  **spec["hyperparams"], **options)
+    init = init_spec(spec.get("init"))
+    if init is not None:  # agent.init / --init: another checkpoint's weights (agents.warm_start)
+        try:
+            try:
+                source = find_checkpoint(init[0])
+            except RecipeError as e:
+                raise RecipeError(f"agent.init: {e}") from None
+            init_policy(agent, source, init[1])
+        except BaseException:
+            agent.close()
+            raise
+    return agent
 
 
 def with_checkpoints_loaded(value: Any) -> Any:
@@ -255,7 +269,7 @@ def _what_was_saved(run: Path) -> str:
 def _train_until_done(opts, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
     print(f"run directory: {run}", flush=True)
     evaluator.history_dir = run / "evals"
-    callbacks, eval_cb = _callbacks(recipe, run, evaluator, resuming=opts.resume is not None)
+    callbacks, eval_cb = _callbacks(recipe, run, evaluator, resuming=opts.resume is not None, agent=agent)
     remaining = recipe["train"]["total_timesteps"] - agent.num_timesteps
     with _SigtermAsInterrupt() as sigterm:
         try:
@@ -440,10 +454,17 @@ def _resume_agent(opts, recipe: dict, checkpoint: Path, overrides: list[str]):
                        update_threads=opts.update_threads, **changed)
 
 
-def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool):
+def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool, agent=None):
     from .callbacks import CheckpointCallback, EvalCallback
 
     callbacks, eval_cb = [], None
+    if recipe["train"]["curriculum"] is not None:
+        from .curriculum import StartCurriculum
+
+        curriculum = StartCurriculum(recipe["train"]["curriculum"])
+        if agent is not None:  # now, so the env's first reset already draws from the schedule
+            curriculum.on_training_start(agent)
+        callbacks.append(curriculum)
     if recipe["train"]["checkpoint_every"] > 0:
         callbacks.append(CheckpointCallback(recipe["train"]["checkpoint_every"], run / "checkpoints"))
     if recipe["eval"]["every"] > 0:

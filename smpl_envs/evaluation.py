@@ -53,6 +53,8 @@ from .progress import pbar
 
 # Env kwargs that only make sense for the env an evaluation builds itself.
 _VEC_ONLY = ("num_envs", "autoreset_mode", "render_mode", "render_world")
+# Env kwargs that belong to the training motions: they go where the motions go.
+_MOTION_KWARGS = ("motions", "motion_weights")
 
 
 @dataclass
@@ -113,12 +115,12 @@ class EvalProtocol:
     def eval_kwargs(self, train_kwargs: dict) -> dict:
         """Env kwargs of a training run that carry over to its evaluation (reward weights,
         substeps, action mode ...)."""
-        drop = set(self.train_only_kwargs) | set(_VEC_ONLY) | {"motions"}
+        drop = set(self.train_only_kwargs) | set(_VEC_ONLY) | set(_MOTION_KWARGS)
         return {k: v for k, v in train_kwargs.items() if k not in drop}
 
     def record_kwargs(self, train_kwargs: dict) -> dict:
         """Env kwargs for a video of a training run's policy (one world, as in training)."""
-        return {k: v for k, v in train_kwargs.items() if k not in set(_VEC_ONLY) | {"motions"}}
+        return {k: v for k, v in train_kwargs.items() if k not in set(_VEC_ONLY) | set(_MOTION_KWARGS)}
 
     def run(self, policy: Callable, env, options: dict, progress: bool) -> EvalResult:
         raise NotImplementedError
@@ -141,10 +143,13 @@ class ClipProtocol(EvalProtocol):
             raise ValueError(f"threshold must be a positive distance in metres, got {t!r}")
         return options
 
+    def eval_kwargs(self, train_kwargs: dict) -> dict:
+        return _reference_starts(super().eval_kwargs(train_kwargs))
+
     def record_kwargs(self, train_kwargs: dict) -> dict:
         # From a clip's first frame, with the training termination and episode length, so a
         # fall restarts the clip as in training.
-        return {**super().record_kwargs(train_kwargs), "start": "beginning"}
+        return _reference_starts({**super().record_kwargs(train_kwargs), "start": "beginning"})
 
     def make_env(self, env_id, motions, num_envs, env_kwargs, progress, options):
         import gymnasium as gym
@@ -177,6 +182,16 @@ class ClipProtocol(EvalProtocol):
         error = summary.get("all_mpjpe_g")
         summary["score"] = float(summary["success_rate"]) - (1e-6 * error if error is not None and np.isfinite(error) else 0.0)
         return EvalResult(rows, summary, "clips")
+
+
+def _reference_starts(kwargs: dict) -> dict:
+    """`kwargs` with a training run's recovery settings (Imitation's `recovery` dict) kept, but
+    every clip starting on its reference and no termination continued: a clip is imitated from
+    its first frame, not from the fallen or far starts a recovery mix trained on."""
+    recovery = kwargs.get("recovery")
+    if isinstance(recovery, dict):
+        kwargs = {**kwargs, "recovery": {**recovery, "starts": {"reference": 1.0}, "continue_prob": 0.0}}
+    return kwargs
 
 
 class EpisodeProtocol(EvalProtocol):

@@ -33,6 +33,7 @@ clip's first frame with `start="beginning"`), or the rest pose when the task run
 
 from __future__ import annotations
 
+import copy
 import os
 from typing import Any, ClassVar
 
@@ -100,6 +101,31 @@ def check_number(name: str, value, positive: bool = False) -> float:
     return v
 
 
+def clip_weights(names: list[str], weights) -> np.ndarray:
+    """(K,) sampling weights of clips `names` from a {clip name: weight} mapping (`motion_weights`):
+    the clips it does not name weigh 0. A ValueError names an unknown clip, an ambiguous name or a
+    bad weight."""
+    if not isinstance(weights, dict) or not weights:
+        raise ValueError(f"motion_weights must be a non-empty mapping of clip name -> weight, got {weights!r}")
+    index = {}
+    for i, name in enumerate(names):
+        index.setdefault(name, []).append(i)
+    unknown = sorted(str(k) for k in weights if k not in index)
+    if unknown:
+        raise ValueError(f"motion_weights: no clip named {unknown[:5]}" + (f" and {len(unknown) - 5} more"
+                                                                            if len(unknown) > 5 else ""))
+    out = np.zeros(len(names))
+    for name, w in weights.items():
+        if len(index[name]) > 1:
+            raise ValueError(f"motion_weights: {len(index[name])} clips are named {name!r}; weights go by name")
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not np.isfinite(w) or w < 0:
+            raise ValueError(f"motion_weights[{name!r}] must be a non-negative number, got {w!r}")
+        out[index[name][0]] = float(w)
+    if not out.sum() > 0:
+        raise ValueError("motion_weights: every weight is 0; no clip could be drawn")
+    return out
+
+
 def fallen(body: BodyState, height: float = 0.15, head_height: float = 0.3):
     """(N,) a fall: a body origin other than the feet' below `height` m, or the head's below
     `head_height` m. REFERENCE section 5 also asks for ground contact; heights alone are cheaper
@@ -131,7 +157,9 @@ class HumanoidVecEnv(VectorEnv):
     """N simulated SMPL humanoids stepped together; a task subclass supplies what they do.
 
     Core kwargs (every task): motions (clips for start poses, references or style; None: the rest
-    pose), start ("random" frame or "beginning" of a clip), beginning_share (the fraction of
+    pose), motion_weights (a mapping {clip name: weight}: the library's sampling weights, clips
+    it does not name weighing 0; PMCP trains a primitive on its hard clips so: `clip_sampling`),
+    start ("random" frame or "beginning" of a clip), beginning_share (the fraction of
     random starts moved to a clip's first frame), failure_sampling (the share of start clips drawn
     by their recent failure rate, PHC's hard-negative mining: `clip_sampling`), cache (the
     MotionLib's disk cache),
@@ -157,6 +185,7 @@ class HumanoidVecEnv(VectorEnv):
         num_envs: int = 1,
         *,
         motions: str | os.PathLike | list | MotionLib | None = None,
+        motion_weights: dict | None = None,
         start: str = "random",
         beginning_share: float = 0.0,
         failure_sampling: float = 0.0,
@@ -187,6 +216,12 @@ class HumanoidVecEnv(VectorEnv):
         if not 0 <= int(render_world) < self.num_envs:
             raise ValueError(f"render_world must be in [0, {self.num_envs}), got {render_world!r}")
         self.motion_lib = None if motions is None else load_motions(motions, cache=cache)
+        if motion_weights is not None:
+            if self.motion_lib is None:
+                raise ValueError("motion_weights needs clips to weigh: pass motions=")
+            # A copy: a library the caller passed in keeps its own weights.
+            self.motion_lib = copy.copy(self.motion_lib)
+            self.motion_lib.set_weights(clip_weights(self.motion_lib.names, motion_weights))
         if not (isinstance(failure_sampling, (int, float)) and 0.0 <= float(failure_sampling) <= 1.0):
             raise ValueError(f"failure_sampling must be a fraction in [0, 1], got {failure_sampling!r}")
         if failure_sampling and self.motion_lib is None:
@@ -244,7 +279,8 @@ class HumanoidVecEnv(VectorEnv):
 
     def _reset_task(self, ids: np.ndarray, options: dict) -> tuple[np.ndarray, np.ndarray]:
         """Start states (qpos, qvel of the whole model) of worlds `ids`; reset their task state."""
-        return self.start_pose(ids, options.get("motion_ids"), options.get("start", self.start))
+        return self.start_pose(ids, options.get("motion_ids"), options.get("start", self.start),
+                               options.get("start_frame"))
 
     def _ctrl(self, actions: np.ndarray) -> np.ndarray:
         """PD targets (N, 69) of actions in [-1, 1]."""
@@ -269,10 +305,13 @@ class HumanoidVecEnv(VectorEnv):
         return []
 
     # ------------------------------------------------------------------ helpers for tasks
-    def start_pose(self, ids: np.ndarray, motion_ids=None, start: str = "random") -> tuple[np.ndarray, np.ndarray]:
+    def start_pose(self, ids: np.ndarray, motion_ids=None, start: str = "random",
+                   start_frame=None) -> tuple[np.ndarray, np.ndarray]:
         """Full-model (qpos, qvel) for worlds `ids`: a frame of the motion library (clips drawn by
-        its weights unless `motion_ids`; a random frame that leaves one step to go, or the first),
-        or the model's rest pose when there are no clips. Records `start_motion` / `start_frame`."""
+        its weights unless `motion_ids`; a random frame that leaves one step to go, or the first,
+        or `start_frame`, a frame index within each world's clip, for a task that offers the
+        reset option), or the model's rest pose when there are no clips. Records `start_motion` /
+        `start_frame`."""
         n = len(ids)
         qpos = self.backend.rows(self._qpos0, n)
         qvel = self.backend.zeros((n, self.model.nv))
@@ -282,6 +321,15 @@ class HumanoidVecEnv(VectorEnv):
                 raise ValueError("reset option motion_ids needs an env made with motions=")
             return qpos, qvel
         self.start_motion[ids], self.start_frame[ids] = self.start_frames(lib, n, motion_ids, start)
+        if start_frame is not None:
+            # An exact frame of each world's clip (perpetual control restarts a world where its
+            # reference is now), clamped to the clip.
+            b = self.backend
+            local = b.asarray(start_frame, "int").reshape(-1)
+            if len(local) not in (1, n) or bool((local < 0).any()):
+                raise ValueError(f"reset option start_frame must be one frame index >= 0 or {n} of them")
+            m = self.start_motion[ids]
+            self.start_frame[ids] = lib.starts[m] + b.xp.minimum(local, lib.lengths[m] - 1)
         hq, hv = lib.qpos_qvel(self.start_frame[ids])
         qpos[:, self.humanoid.qpos], qvel[:, self.humanoid.qvel] = hq, hv
         return qpos, qvel

@@ -59,6 +59,10 @@ fail-state recovery (`smpl_envs.envs.recovery`): a world whose pelvis is more th
 reference's gets the recovery goal and reward instead of terminating, and the ordinary goal back
 once within reach, in the same episode. `info` then adds `reward_point`, `recovering`,
 `root_distance` and `start_kind`. Off (the default), nothing here changes.
+
+Reset options: `motion_ids`, `start` (the core's), `start_frame` (a frame index within each
+reset world's clip, with `motion_ids`: a world restarted where its reference is now), and with
+recovery `recovery_start`.
 """
 
 from __future__ import annotations
@@ -141,6 +145,7 @@ class ImitationVecEnv(HumanoidVecEnv):
     task_layout = {"goal": IMITATION_GOAL_LAYOUT}
     evaluation = ClipProtocol()
     policy_kwargs = (*HumanoidVecEnv.policy_kwargs, "action_mode", "residual_scale")  # what an action does
+    reset_options = (*HumanoidVecEnv.reset_options, "start_frame")
     goal = "rotation"
     backends = ("cpu", "warp")
 
@@ -194,7 +199,13 @@ class ImitationVecEnv(HumanoidVecEnv):
             self._action_rate = (d * d).sum(axis=-1) * (1.0 / d.shape[-1])
             self._prev_action[:] = actions
             self._first_step[:] = False
-        return self.ref.pd_targets(actions, self.action_scale, self.action_mode, self.residual_scale)
+        targets = self.ref.pd_targets(actions, self.action_scale, self.action_mode, self.residual_scale)
+        if self.recovery is not None:
+            # While the goal shows its recovery form, a residual may be taken around another base
+            # than the standing reference (`recovery_action_base`).
+            targets = self.recovery.pd_targets(targets, actions, self.action_scale, self.action_mode,
+                                               self.residual_scale, self.sim.qpos[:, self.humanoid.dof_qpos])
+        return targets
 
     def _advance(self, active):
         self.ref.advance(active)
@@ -229,6 +240,15 @@ class ImitationVecEnv(HumanoidVecEnv):
 
     def _markers(self, world):
         return [(self.motion_lib.body_pos[int(self.ref.frame[world])], MARKER_RGBA, 0.03)]
+
+    def set_recovery_starts(self, starts: dict) -> None:
+        """Draw the start kinds of the resets from now on from `starts` ({kind: probability} over
+        reference, fallen, far, fallen+far): the hook of a get-up curriculum, which changes the
+        mix over training (`agents.curriculum`). Needs recovery on."""
+        if self.recovery is None:
+            raise ValueError("set_recovery_starts needs recovery on (SMPL/Recovery-v0, or Imitation-v0 with "
+                             "recovery=True)")
+        self.recovery.set_starts(starts)
 
     def reference_action(self) -> np.ndarray:
         """(N, 69) actions whose PD targets are the next reference frame's joint angles (in either

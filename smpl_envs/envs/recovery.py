@@ -38,6 +38,24 @@ reference pelvis, 3D, so lying at the reference spot is still "far"):
   The observation's form is decided by the distance to the reference it shows (the next frame),
   the reward's by the current one.
 
+Actions while recovering (`recovery_action_base`, residual action mode only; a policy setting):
+a residual action is added to a base, and the goal's recovery form says "keep as you are", so
+the base decides what the zero action does to a body on the floor.
+
+* "reference" (the default, and all there was before): the next reference frame's joint angles,
+  as while tracking. The reference stays a standing pose while the body lies on the floor, so
+  the zero action asks a fallen body to hold a standing pose, which it cannot reach from there
+  with residuals of a quarter range (REFERENCE.md section 8, measured: 0 % Succ-10s).
+* "pose": the simulated hinge angles. The zero action holds no pose (the PD target follows the
+  body, only damping acts), so every step's residual is close to a torque command.
+* "target": the PD targets of the world's step before (a fallen or far start begins at its own
+  pose). The zero action holds the last commanded pose stiffly, which matches the goal's "keep
+  as you are", and successive residuals move the target anywhere in the joint range, so a
+  tracker's small residuals (a quarter range per step) still add up to a get-up. Near the
+  reference (the goal's ordinary form) every base is the reference, so a tracker's weights mean
+  what they meant, and the step the goal switches back the target returns to reference +
+  residual. This is the base `tasks/recovery_tracker_ppo.yaml` starts a tracker's weights on.
+
 Episode rules: no termination while recovering (d > switch_distance) nor during the grace that
 follows a recovering step, a fallen or far start, or a continued termination (`grace_steps`);
 otherwise Imitation's relaxed early termination (termination_distance). A diverged simulation
@@ -251,29 +269,32 @@ class RecoveryVecEnv(ImitationVecEnv):
     (0.5 m), clamp_distance (5 m), point_scale (9), point_clip (1/3 m), recovery_imitation_weight
     (0.5), grace_steps (90), continue_prob (0.5), far_distance ((2, 5) m), hold_end (True: the
     reference holds its last frame, no truncation at the clip's end), fallen_cache_size (128),
-    fallen_seed (0); and Imitation's (motions: "stand", reward_weights, reward_scales,
+    fallen_seed (0), recovery_action_base ("reference", "pose" or "target": module docstring);
+    and Imitation's (motions: "stand", reward_weights, reward_scales,
     energy_weight, termination_distance, action_mode, residual_scale, core kwargs).
     """
 
     evaluation = RecoveryProtocol()
     backends = ("cpu", "warp")
-    # When and how the observation takes the recovery form.
-    policy_kwargs = (*ImitationVecEnv.policy_kwargs, "switch_distance", "clamp_distance")
+    # When and how the observation takes the recovery form, and what a residual action is added to then.
+    policy_kwargs = (*ImitationVecEnv.policy_kwargs, "switch_distance", "clamp_distance", "recovery_action_base")
     switch_distance = property(lambda self: self.recovery.switch_distance)
     clamp_distance = property(lambda self: self.recovery.clamp_distance)
+    recovery_action_base = property(lambda self: self.recovery.action_base)
 
     def __init__(self, num_envs: int = 1, *, motions="stand", starts=None, switch_distance=SWITCH_DISTANCE,
                  clamp_distance=CLAMP_DISTANCE, point_scale=POINT_SCALE, point_clip=POINT_CLIP,
                  recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT, grace_steps=GRACE_STEPS,
                  continue_prob=0.5, far_distance=FAR_DISTANCE, hold_end=True, fallen_cache_size=128,
-                 fallen_seed=0, **kwargs):
+                 fallen_seed=0, recovery_action_base="reference", **kwargs):
         if "recovery" in kwargs:
             raise ValueError("recovery: Recovery-v0 always recovers; its settings are its own kwargs")
         recovery = dict(starts=DEFAULT_STARTS if starts is None else starts, switch_distance=switch_distance,
                         clamp_distance=clamp_distance, point_scale=point_scale, point_clip=point_clip,
                         recovery_imitation_weight=recovery_imitation_weight, grace_steps=grace_steps,
                         continue_prob=continue_prob, far_distance=far_distance, hold_end=hold_end,
-                        fallen_cache_size=fallen_cache_size, fallen_seed=fallen_seed)
+                        fallen_cache_size=fallen_cache_size, fallen_seed=fallen_seed,
+                        recovery_action_base=recovery_action_base)
         super().__init__(num_envs, motions=motions, recovery=recovery, **kwargs)
 
     def regenerate_fallen(self, seed: int | None = None) -> None:

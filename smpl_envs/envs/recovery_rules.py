@@ -25,6 +25,10 @@ POINT_CLIP = 1.0 / 3.0
 RECOVERY_IMITATION_WEIGHT = 0.5
 GRACE_STEPS = 90
 FAR_DISTANCE = (2.0, 5.0)
+# What a residual action is added to while the goal shows its recovery form (module docstring of
+# `smpl_envs.envs.recovery`): the reference (as while tracking), the simulated pose, or the PD
+# target of the step before.
+ACTION_BASES = ("reference", "pose", "target")
 FALLEN, FAR = np.array([False, True, False, True]), np.array([False, False, True, True])
 
 
@@ -89,8 +93,11 @@ class RecoveryController:
     def __init__(self, env, *, starts=None, switch_distance=SWITCH_DISTANCE, clamp_distance=CLAMP_DISTANCE,
                  point_scale=POINT_SCALE, point_clip=POINT_CLIP, recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT,
                  grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
-                 fallen_cache_size=128, fallen_seed=0):
+                 fallen_cache_size=128, fallen_seed=0, recovery_action_base="reference"):
         self.p = check_starts({"reference": 1.0} if starts is None else starts)
+        if recovery_action_base not in ACTION_BASES:
+            raise ValueError(f"recovery_action_base must be one of {ACTION_BASES}, got {recovery_action_base!r}")
+        self.action_base = recovery_action_base
         self.switch_distance = check_number("switch_distance", switch_distance, positive=True)
         self.clamp_distance = check_number("clamp_distance", clamp_distance, positive=True)
         self.point_clip = check_number("point_clip", point_clip, positive=True)
@@ -112,6 +119,17 @@ class RecoveryController:
         self.start_kind = b.zeros(n, "int")
         self.root_distance = b.zeros(n)
         self.grace = b.zeros(n, "int")
+        self.showing = b.zeros(n, "bool")    # the last observation's goal is in the recovery form
+        self.last_target = b.zeros((n, env.single_action_space.shape[0]))  # each world's last PD targets
+
+    def set_starts(self, starts) -> None:
+        """A new start mix ({kind: probability}, as `starts=`) for the resets from now on: what a
+        get-up curriculum changes over training (`agents.curriculum`)."""
+        self.p = check_starts(starts)
+
+    @property
+    def starts(self) -> dict[str, float]:
+        return {k: float(p) for k, p in zip(START_KINDS, self.p)}
 
     def reset(self, ids, qpos, qvel, ref_root, kind, rng):
         """Start states of worlds `ids` from their reference-state (qpos, qvel) and reference
@@ -137,6 +155,7 @@ class RecoveryController:
             bearing = b.uniform(rng, m, 0.0, 2.0 * np.pi)
             q[far, :2] += b.asarray(r[:, None] * xp.stack([xp.cos(bearing), xp.sin(bearing)], -1))
         self.start_kind[ids] = kinds
+        self.last_target[ids] = q[:, 7:]  # "target" base: a start holds the pose it starts in
         self.grace[ids] = xp.where(kinds > 0, self.grace_steps, 0)
         d = q[:, :3] - ref_root
         self.root_distance[ids] = xp.sqrt((d * d).sum(-1))
@@ -170,7 +189,20 @@ class RecoveryController:
     def goal_reference(self, body, ref_next):
         """The reference the observation shows (`recovery_reference` beyond switch_distance)."""
         far = root_distance(body, ref_next) > self.switch_distance
+        self.showing = far
         return recovery_reference(body, ref_next, far, self.clamp_distance) if far.any() else ref_next
+
+    def pd_targets(self, targets, actions, action_scale, action_mode: str, residual_scale: float, pose):
+        """The PD targets of a step: Imitation's `targets`, except for residual actions of worlds
+        whose last observation showed the recovery goal, which are added to the base
+        `recovery_action_base` names: the simulated hinge angles `pose` ("pose"), or the PD targets
+        of the world's last step ("target"). Records every world's targets for the next step."""
+        if self.action_base != "reference" and action_mode == "residual" and bool(self.showing.any()):
+            base = pose if self.action_base == "pose" else self.last_target
+            moved = (base + actions * (residual_scale * action_scale)).clip(-action_scale, action_scale)
+            targets = self.backend.xp.where(self.showing[:, None], moved, targets)
+        self.last_target[:] = targets
+        return targets
 
     def info(self) -> dict:
         copy = self.backend.copy

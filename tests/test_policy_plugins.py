@@ -176,7 +176,7 @@ def test_a_checkpoint_naming_a_missing_class_is_a_clear_error(orphan, capsys):
 
 # ---------------------------------------------------------------------------------------- old checkpoints
 @pytest.mark.parametrize("name", ["walk", "clips", "ppo_v1", "amp_v1", "pendulum_v1"])
-def test_old_checkpoints_act_exactly_as_before(name):
+def test_old_checkpoints_act_as_before(name):
     """Actions the code before plug-ins gave (tests/make_compat_data.py) on fixed observations,
     from checkpoints without a policy class: the shipped policies, tiny PPO / AMP agents and a
     Pendulum agent whose [-2, 2] box the policy's map now rescales onto."""
@@ -185,7 +185,9 @@ def test_old_checkpoints_act_exactly_as_before(name):
     assert "policy_class" not in load_checkpoint(path)
     agent = agents.load(path, device="cpu")
     assert type(agent.policy) is ActorCritic
-    np.testing.assert_array_equal(agent.predict(stored[f"{name}/obs"])[0], stored[f"{name}/actions"])
+    # Equal up to float32 rounding: the stored actions came from another CPU, whose matmul
+    # kernels sum in another order (~3e-7 apart); a changed network or map moves them far more.
+    np.testing.assert_allclose(agent.predict(stored[f"{name}/obs"])[0], stored[f"{name}/actions"], rtol=0, atol=1e-5)
 
 
 @pytest.mark.parametrize("name", ["ppo_v1", "amp_v1"])

@@ -112,3 +112,20 @@ def test_readme_records_the_shipped_walk_policy(tmp_path, monkeypatch):
     video = namespace["video"]
     assert (video["steps"], video["episodes"]) == (180, 1), video  # the whole clip, no fall
     assert (tmp_path / "out" / "walk.mp4").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_shipped_tracker_tracks_held_out_corpus_clips():
+    # Held-out clips (corpus:test) of five families that the shipped tracker succeeded on in its
+    # run's final evaluation (docs/corpus.md): a change to the env, the corpus or the policy's
+    # settings that breaks the generalist fails here.
+    import smpl_envs
+    from smpl_envs.motion.library import MotionLib, load_motions
+
+    lib = load_motions("corpus:test", progress=False)
+    names = ["walk_test_0000", "run_test_0003", "side_step_test_0000", "reach_test_0000", "squat_test_0000"]
+    subset = MotionLib([lib.motion(lib.index(n)) for n in names])
+    policy = agents.load(find_checkpoint("tracker"), device="cpu")
+    result = smpl_envs.evaluate(policy, "SMPL/Imitation-v0", motions=subset, num_envs=5, progress=False)
+    assert result.summary["success_rate"] == 1.0, [(r["name"], r["success"]) for r in result.rows]
+    assert result.summary["mpjpe_g"] < 120.0

@@ -69,6 +69,17 @@ class _LatentMap:
     """What the one-world and the vector LatentAction share: the decoder, the checks of the env
     it drives, and the map from latent to env actions on the last observation."""
 
+    # Shared by the one-world and the vector wrapper: the mixin comes first in their MROs.
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._obs = obs
+        return obs, info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(self._decode(action))
+        self._obs = obs
+        return obs, reward, terminated, truncated, info
+
     def _setup(self, env, decoder, device) -> None:
         from . import policy_settings
         from .env_ids import ENV_IDS
@@ -141,16 +152,6 @@ class LatentAction(_LatentMap, gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._setup(env, decoder, device)
         self.action_space = self._box(bound)
 
-    def reset(self, *, seed=None, options=None):
-        obs, info = self.env.reset(seed=seed, options=options)
-        self._obs = obs
-        return obs, info
-
-    def step(self, action):
-        obs, reward, terminated, truncated, info = self.env.step(self._decode(action))
-        self._obs = obs
-        return obs, reward, terminated, truncated, info
-
 
 class LatentActionVec(_LatentMap, gym.vector.VectorWrapper):
     """`LatentAction` of a vector env: N worlds, each acting in the latent space, decoded in one
@@ -161,16 +162,6 @@ class LatentActionVec(_LatentMap, gym.vector.VectorWrapper):
         self._setup(env, decoder, device)
         self.single_action_space = self._box(bound)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, env.num_envs)
-
-    def reset(self, *, seed=None, options=None):
-        obs, info = self.env.reset(seed=seed, options=options)
-        self._obs = obs
-        return obs, info
-
-    def step(self, actions):
-        obs, reward, terminated, truncated, info = self.env.step(self._decode(actions))
-        self._obs = obs
-        return obs, reward, terminated, truncated, info
 
 
 # Keys of a SameStep info dict that describe the finished episode rather than the current one.

@@ -109,6 +109,8 @@ class VideoLib:
     """
 
     def __init__(self, inputs: list[VideoInput], truth: MotionLib | None = None):
+        """`inputs`: the sequences; `truth`: a MotionLib of their ground truth (the same clips
+        in the same order and lengths) instead of the inputs' own, which may then be None."""
         if not inputs:
             raise ValueError("VideoLib needs at least one VideoInput")
         inputs = [v.resampled(FPS) for v in inputs]
@@ -116,7 +118,7 @@ class VideoLib:
         if any(has_truth) and not all(has_truth):
             missing = [v.name for v, h in zip(inputs, has_truth) if not h][:5]
             raise ValueError(f"VideoLib: either every sequence has ground truth or none does; none for {missing}")
-        self.inputs = inputs
+        # The inputs themselves are not kept: a corpus' worth of float64 copies is half a gigabyte.
         self.names = [v.name for v in inputs]
         self.estimate = MotionLib([v.estimate() for v in inputs], ground=False)
         if truth is None and all(has_truth):

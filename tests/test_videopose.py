@@ -441,9 +441,9 @@ def test_supervised_pretraining_lowers_the_refinement_error():
 
     model = SimPoEPPO(ID, n_envs=8, env_kwargs={"motions": ["walk", "run"]}, policy_kwargs={
         "iterations": 2, "refine_hidden": [64], "actor_hidden": [32], "critic_hidden": [32]},
-        refine_pretrain_samples=256, refine_pretrain_epochs=10, batch_size=64, verbose=0, seed=0,
+        refine_pretrain_samples=128, refine_pretrain_epochs=6, batch_size=64, verbose=0, seed=0,
         tensorboard=False, device="cpu")
-    out = model.pretrain_refinement(256)
+    out = model.pretrain_refinement(128)
     assert out["after_mm"] < out["before_mm"] and model.refine_pretrained
     model.close()
     with pytest.raises(ValueError, match="ground truth"):

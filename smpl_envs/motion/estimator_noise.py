@@ -131,9 +131,10 @@ def slow_noise(rng: np.random.Generator, frames: int, shape: tuple, sigma_frames
 
 
 def degrade(motion: Motion, noise: EstimatorNoise | dict | None = None, *, seed: int | np.random.Generator = 0,
-            camera: Camera | None = None, name: str | None = None) -> VideoInput:
+            camera: Camera | None = None, name: str | None = None, keep_truth: bool = True) -> VideoInput:
     """The video input an estimator would give for `motion` (module docstring), with `motion`
-    as its ground truth. `camera`: film with this one instead of a random plausible one."""
+    as its ground truth (unless `keep_truth=False`: a caller that holds the truth already).
+    `camera`: film with this one instead of a random plausible one."""
     noise = EstimatorNoise.make(noise)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     if motion.fps != FPS:
@@ -179,7 +180,8 @@ def degrade(motion: Motion, noise: EstimatorNoise | dict | None = None, *, seed:
     seen = detected & ~occluded & camera.visible(px, depth)
     conf = np.where(seen, conf, 0.0)
     px = np.where(seen[..., None], px, 0.0)
-    truth = RawMotion(motion.name, FPS, root.copy(), local.copy(), motion.betas, motion.gender, motion.source)
+    truth = (RawMotion(motion.name, FPS, root.copy(), local.copy(), motion.betas, motion.gender, motion.source)
+             if keep_truth else None)
     return VideoInput(name or motion.name, FPS, est_root, est_local, px, conf, camera, truth,
                       source=f"estimator model of {motion.source or motion.name}")
 
@@ -195,7 +197,7 @@ def degrade_library(motions, noise: EstimatorNoise | dict | None = None, *, seed
     inputs = []
     for i in pbar(range(lib.num_motions), desc="estimator model", unit="clip", disable=not progress):
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), i]))
-        inputs.append(degrade(lib.motion(i), noise, seed=rng))
+        inputs.append(degrade(lib.motion(i), noise, seed=rng, keep_truth=False))  # the library is the truth
     return VideoLib(inputs, truth=lib)
 
 

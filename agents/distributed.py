@@ -164,7 +164,8 @@ class DataParallel:
 
     def describe(self) -> str:
         backend = dist.get_backend() if self.enabled else "none"
-        return f"{self.world_size} process{'es' if self.world_size > 1 else ''} ({backend}, collectives on {self.device})"
+        processes = f"{self.world_size} process{'es' if self.world_size > 1 else ''}"
+        return f"{processes} ({backend}, collectives on {self.device})"
 
     # ------------------------------------------------------------------ errors
     @contextlib.contextmanager

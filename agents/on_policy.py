@@ -24,7 +24,7 @@ agree on (`_minibatches`) and averages every backward pass's gradients
 (`_gradient_sync(module, optimizer)`: its `loss` and `backward` replace the plain calls);
 training stops on every rank when a callback on one stops it. Rank r seeds torch with seed + r
 and its env's first reset with seed + r x n_envs (so vector envs that seed world i with
-seed + i never repeat another rank's worlds). `env` and `batch_size` are per process. In one
+seed + i never repeat another rank's worlds). The env's worlds and `batch_size` are per process. In one
 process all of it is a no-op: training is exactly as without it.
 """
 from __future__ import annotations
@@ -306,6 +306,7 @@ class OnPolicyAlgorithm:
         if reset_num_timesteps:
             self.num_timesteps, self.iteration = 0, 0
             self.episodes.clear()
+            self._rank_episodes.clear()
         target = self.num_timesteps + int(total_timesteps)
         callback = as_callback(callback)
         self._replicate()

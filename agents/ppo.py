@@ -62,7 +62,8 @@ class PPO(OnPolicyAlgorithm):
         sync = self._gradient_sync(pol, self.optimizer)  # averages gradients across a job's ranks
         for _ in range(cfg.n_epochs):
             for mb in self._minibatches(data, cfg.batch_size):
-                loss, policy_loss, value_loss, entropy, bounds_loss, ratio, log_ratio = sync.loss(lambda: self._loss(mb))
+                terms = sync.loss(lambda: self._loss(mb))
+                loss, policy_loss, value_loss, entropy, bounds_loss, ratio, log_ratio = terms
                 self.optimizer.zero_grad(set_to_none=True)
                 sync.backward(loss)
                 grad_norm = torch.nn.utils.clip_grad_norm_(pol.parameters(), cfg.max_grad_norm)

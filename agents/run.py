@@ -330,21 +330,26 @@ def _train_until_done(opts, recipe: dict, run: Path, agent, evaluator: "Evaluato
             path = agent.save(run / "checkpoints" / "last.pt")
             terminated = isinstance(stop, Terminated)
             print(f"\n{'terminated (SIGTERM)' if terminated else 'interrupted'} at {agent.num_timesteps:,} "
-                  f"timesteps; saved {path}\ncontinue with: smpl-envs train --resume {run}", file=sys.stderr)
+                  f"timesteps; saved {path}\ncontinue with: {resume_command(run, dp)}", file=sys.stderr)
             return TERMINATED if terminated else INTERRUPTED
         except PeerError as e:
             signals.disarm()
             path = agent.save(run / "checkpoints" / "last.pt")
             if signals.received is not None:  # the others stopped on the same signal and left first
                 print(f"\nterminated at {agent.num_timesteps:,} timesteps; saved {path}\ncontinue with: "
-                      f"smpl-envs train --resume {run}", file=sys.stderr)
+                      f"{resume_command(run, dp)}", file=sys.stderr)
                 return TERMINATED if signals.received == signal.SIGTERM else INTERRUPTED
-            print_error(f"{e}; saved {path} at {agent.num_timesteps:,} timesteps; continue with: smpl-envs train "
-                        f"--resume {run}")
+            print_error(f"{e}; saved {path} at {agent.num_timesteps:,} timesteps; continue with: "
+                        f"{resume_command(run, dp)}")
             return PEER_LOST
     _finish_run(agent, recipe, run, evaluator, eval_cb, progress=opts.progress)
     print(f"run directory: {run}")
     return 0
+
+
+def resume_command(run: Path, dp: DataParallel) -> str:
+    """The command that continues `run` (a data-parallel one in as many processes; any number works)."""
+    return f"smpl-envs train --resume {run}" + (f" --nproc {dp.world_size}" if dp.enabled else "")
 
 
 def describe_data_parallel(agent) -> str:

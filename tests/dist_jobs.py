@@ -182,3 +182,23 @@ def dying_job(rank: int, out: Path, how: str = "stall") -> dict:
     except distributed.PeerError as e:
         return {"error": str(e), "seconds": time.monotonic() - start, "iteration": model.iteration}
     return {"error": None, "seconds": time.monotonic() - start, "iteration": model.iteration}
+
+
+def base_agents_job(rank: int, out: Path) -> dict:
+    """The other agents on the shared base: PULSE distilling the shipped clips policy, and PPO
+    training a PMCP composer over two frozen primitives (the shipped walk policy and a tiny one)."""
+    from agents import PPO, PULSE, load_policy
+    from agents.recipes import find_checkpoint
+
+    small = dict(n_steps=16, batch_size=32, n_epochs=1, seed=0, verbose=0, device="cpu")
+    pulse = PULSE("SMPL/Imitation-v0", teacher="clips", n_envs=2, env_kwargs={"motions": "walk"},
+                  policy_kwargs={"encoder_hidden": [32], "prior_hidden": [32], "decoder_hidden": [32]}, **small)
+    pulse.learn(2 * 2 * 16 * 2, progress_bar=False)
+    primitives = [load_policy(find_checkpoint("walk")), load_policy(Path(__file__).parent / "data" / "compat" / "ppo_v1.pt")]
+    composer = PPO("SMPL/Imitation-v0", n_envs=2, policy="Composer",
+                   env_kwargs={"motions": "walk", "action_mode": "residual", "residual_scale": 0.25},
+                   policy_kwargs={"primitives": primitives, "actor_hidden": [16], "critic_hidden": [16]}, **small)
+    initial = {k: v.clone() for k, v in composer.policy.state_dict().items()}
+    composer.learn(2 * 2 * 16 * 2, progress_bar=False)
+    return {"pulse": {k: v.clone() for k, v in pulse.policy.state_dict().items()},
+            "composer_initial": initial, "composer": {k: v.clone() for k, v in composer.policy.state_dict().items()}}

@@ -19,7 +19,7 @@ from agents import distributed
 from agents.cli import main, without_nproc
 from agents.normalizer import RunningNorm
 from agents.rollout import minibatch_count, minibatches
-from dist_jobs import amp_job, dying_job, ppo_job, primitives_job, run_job
+from dist_jobs import amp_job, base_agents_job, dying_job, ppo_job, primitives_job, run_job
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -127,13 +127,22 @@ def test_ppo_ranks_hold_identical_agents_after_several_updates(tmp_path, grad_sy
             torch.testing.assert_close(r0["final"][f"{prefix}.{k}"], v, rtol=2e-6, atol=1e-6)
 
 
-@pytest.mark.slow
 def test_amp_discriminator_is_identical_across_ranks(tmp_path):
     ranks = run_job(amp_job, tmp_path, wait_s=180)
     assert not torch.equal(ranks[0]["demo"], ranks[1]["demo"])  # each rank samples its own demo windows
     assert_same_state(ranks[0]["policy"], ranks[1]["policy"])
     assert_same_state(ranks[0]["disc"], ranks[1]["disc"])  # its weights and its input statistics
     assert float(ranks[0]["disc"]["norm.count"]) > 1
+
+
+def test_pulse_and_the_composer_are_identical_across_ranks(tmp_path):
+    ranks = run_job(base_agents_job, tmp_path, wait_s=180)
+    assert_same_state(ranks[0]["pulse"], ranks[1]["pulse"])
+    assert_same_state(ranks[0]["composer"], ranks[1]["composer"])
+    # The composer network moved; its frozen primitives did not.
+    assert not torch.equal(ranks[0]["composer"]["weight_net.0.weight"], ranks[0]["composer_initial"]["weight_net.0.weight"])
+    frozen = [k for k in ranks[0]["composer"] if k.startswith("primitives.")]
+    assert frozen and all(torch.equal(ranks[0]["composer"][k], ranks[0]["composer_initial"][k]) for k in frozen)
 
 
 @pytest.mark.parametrize("how", ["exit", "stall"])
@@ -168,7 +177,6 @@ def two_process_run(tmp_path_factory):
     return run, done.stdout
 
 
-@pytest.mark.slow
 def test_two_process_run_writes_one_run(two_process_run):
     run, stdout = two_process_run
     assert "data-parallel: 2 processes" in stdout and "env.num_envs=4 worlds" in stdout and "per process" in stdout
@@ -181,7 +189,6 @@ def test_two_process_run_writes_one_run(two_process_run):
     assert (run / "eval.json").is_file()
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("nproc", [None, 2])
 def test_two_process_checkpoint_resumes_in_one_and_in_two_processes(two_process_run, tmp_path, nproc):
     import shutil
@@ -196,7 +203,6 @@ def test_two_process_checkpoint_resumes_in_one_and_in_two_processes(two_process_
     assert agent.iteration == 4 + (4 if nproc == 2 else 8)
 
 
-@pytest.mark.slow
 def test_sigterm_to_torchrun_leaves_a_loadable_last_checkpoint(tmp_path):
     run = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}

@@ -241,8 +241,14 @@ def cmd_generate(args) -> int:
     return run.generate_checkpoint(args.target, which=args.checkpoint, seconds=args.seconds, seed=args.seed,
                                    noise_scale=args.noise_scale, motions=args.motions, out=args.out,
                                    device=args.device, progress=not args.no_progress)
+
+
 def cmd_pmcp(args) -> int:
     from .pmcp import pmcp
+
+    if distributed.launched():  # its mining and evaluations between stages would run in every process
+        raise RecipeError("smpl-envs pmcp runs in one process, not under torchrun; a stage can be trained "
+                          "data-parallel with smpl-envs train --nproc N")
 
     return pmcp(args.recipe, overrides=args.overrides, run_dir=args.run_dir, runs_root=args.runs_root,
                 overwrite=args.overwrite, device=args.device, quiet=args.quiet, update_threads=args.update_threads,

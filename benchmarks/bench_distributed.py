@@ -36,6 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.distributed import GRAD_SYNCS
+from agents.on_policy import OnPolicyConfig
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -100,7 +103,7 @@ def main() -> None:
     p.add_argument("--recipe", default="imitation_ppo")
     p.add_argument("--worlds", type=int, default=None, help="worlds of the whole job (default: the recipe's num_envs)")
     p.add_argument("--nprocs", type=int, nargs="+", default=[1, 2], help="process counts to compare")
-    p.add_argument("--grad-syncs", nargs="+", default=["allreduce", "ddp"], choices=["allreduce", "ddp"])
+    p.add_argument("--grad-syncs", nargs="+", default=list(GRAD_SYNCS), choices=GRAD_SYNCS)
     p.add_argument("--iterations", type=int, default=3, help="timed iterations per measurement")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=1, help="torch CPU threads per process")
@@ -121,7 +124,7 @@ def main() -> None:
 
     recipe = load_recipe(args.recipe, args.set)
     args.worlds = args.worlds or recipe["env"]["num_envs"]
-    args.batch_size = recipe["agent"]["hyperparams"].get("batch_size", 1024)
+    args.batch_size = recipe["agent"]["hyperparams"].get("batch_size", OnPolicyConfig.batch_size)
     for n in args.nprocs:
         if args.worlds % n or args.batch_size % n:
             raise SystemExit(f"--worlds {args.worlds} and batch_size {args.batch_size} must divide by {n} processes")

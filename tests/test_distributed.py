@@ -66,6 +66,9 @@ def test_nproc_runs_torchrun_with_the_rest_of_the_command_line(monkeypatch):
     with pytest.raises(SystemExit) as exc:
         main(["train", "demo_walk_ppo", "--nproc", "2"])
     assert exc.value.code == 2
+    with pytest.raises(SystemExit) as exc:  # PMCP's pipeline is one process's
+        main(["pmcp", "pmcp_corpus"])
+    assert exc.value.code == 2
     with pytest.raises(ValueError, match="--nproc"):
         distributed.torchrun_command(0, [])
 

@@ -108,7 +108,7 @@ class AMP(PPO):
                 override_settings: Iterable[str] = ()) -> None:
         super().set_env(env, n_envs, env_kwargs, override_settings)
         self.motion_lib = reference_motion(self.env)
-        self._demo_rng = np.random.default_rng(self.config.seed)
+        self._demo_rng = np.random.default_rng(self.data_parallel.seed(self.config.seed))
         self._frame_table = self._build_frame_table()
 
     def _rollout_hooks(self) -> StyleWindows:
@@ -168,11 +168,12 @@ class AMP(PPO):
         windows = buf.extras[WINDOWS]
         agent = windows.reshape(-1, windows.shape[-1])[buf.valid_mask()]
         n = len(agent)
-        if n == 0:
+        count = self.data_parallel.minibatch_count(n, cfg.batch_size)  # as many D steps on every rank
+        if count == 0:
             return
         stats: dict[str, list[float]] = {k: [] for k in ("loss", "bce", "grad_penalty", "agent_acc", "demo_acc")}
         for _ in range(cfg.disc_epochs or cfg.n_epochs):
-            for mb in minibatches({"fake": agent}, cfg.batch_size):
+            for mb in minibatches({"fake": agent}, cfg.batch_size, count):
                 fake = mb["fake"][: cfg.disc_batch_size or cfg.batch_size]  # a shuffled minibatch's head
                 size = len(fake)
                 if self.replay.n > 0:  # half the negatives from older policies
@@ -190,9 +191,11 @@ class AMP(PPO):
 
     def _disc_step(self, real: torch.Tensor, fake: torch.Tensor) -> dict[str, float]:
         cfg = self.config
-        loss, stats = self.disc.loss(real, fake, cfg.disc_grad_penalty, cfg.disc_logit_reg, cfg.disc_weight_decay)
+        sync = self._gradient_sync(self.disc, self.disc_optimizer)
+        loss, stats = sync.loss(lambda: self.disc.loss(real, fake, cfg.disc_grad_penalty, cfg.disc_logit_reg,
+                                                       cfg.disc_weight_decay))
         self.disc_optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        sync.backward(loss)
         nn.utils.clip_grad_norm_(self.disc.net.parameters(), cfg.max_grad_norm)
         self.disc_optimizer.step()
         return stats
@@ -202,6 +205,9 @@ class AMP(PPO):
         with torch.no_grad():
             right = torch.cat([self.disc(real) > 0, self.disc(fake) < 0])
         return right.float().mean().item()
+
+    def _replicated_modules(self) -> list[nn.Module]:
+        return [*super()._replicated_modules(), self.disc]
 
     # ------------------------------------------------------------------ persistence
     def _extra_state(self) -> dict:

@@ -6,6 +6,8 @@
     smpl-envs train imitation_ppo --set agent.policy.kwargs.actor_hidden=[1024,512]
     smpl-envs train imitation_amp --profile paper       # PHC's scale, for a GPU box
     smpl-envs train --resume runs/imitation_ppo-<time> --set train.total_timesteps=8e6
+    smpl-envs train imitation_ppo --nproc 4              # data-parallel: 4 processes (torchrun) on this machine
+    torchrun --nproc-per-node 4 -m agents train imitation_ppo   # the same, launched by hand (or on several machines)
     smpl-envs eval runs/imitation_ppo-<time> --motions walk run
     smpl-envs record runs/imitation_ppo-<time> --steps 600
     smpl-envs generate pulse --seconds 20                # a PULSE prior's motion, no task
@@ -31,15 +33,17 @@ from pathlib import Path
 
 from smpl_envs.backend import MissingExtraError
 
-from . import run
+from . import distributed, run
 from .checkpoint import NO_SPACE
 from .plot import EmptyLogError, plot_run
 from .recipes import RecipeError, available_recipes, parse_override, recipe_description, recipe_dirs
-from .run import DISK_FULL, INTERRUPTED, TERMINATED, no_space_message, print_error  # noqa: F401 (exit statuses)
+from .run import DISK_FULL, INTERRUPTED, PEER_LOST, TERMINATED, no_space_message, print_error  # noqa: F401
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
+    args.argv = argv
     try:
         if args.threads is not None:
             _set_threads(args.threads)
@@ -91,6 +95,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--update-threads", type=int, default=None, metavar="M",
                    help="torch CPU threads during the network update, when the simulation is idle "
                         "(default: as --threads); e.g. --threads 1 --update-threads 2 on a 2-core CPU")
+    p.add_argument("--nproc", type=int, default=None, metavar="N",
+                   help="train data-parallel in N processes on this machine (starts torchrun; env.num_envs and "
+                        "the batch sizes are per process). Several machines: torchrun ... -m agents train")
+    p.add_argument("--grad-sync", choices=distributed.GRAD_SYNCS, default="allreduce",
+                   help="how data-parallel processes average gradients: one all-reduce of the flattened gradient "
+                        "(allreduce, the default) or DistributedDataParallel (ddp)")
+    p.add_argument("--dist-timeout", type=float, default=distributed.DEFAULT_TIMEOUT_S, metavar="SECONDS",
+                   help="how long data-parallel processes wait for each other before a dead or stalled one ends "
+                        f"the job (default {distributed.DEFAULT_TIMEOUT_S:g}; longer than rank 0's evaluations)")
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("eval", parents=[common], help="evaluate a run or checkpoint (PHC protocol)")
@@ -175,13 +188,38 @@ def build_parser() -> argparse.ArgumentParser:
 
 # ---------------------------------------------------------------------------------------- commands
 def cmd_train(args) -> int:
+    if args.nproc is not None and args.nproc != 1:
+        if args.nproc < 1:
+            raise RecipeError(f"--nproc must be a positive number of processes, got {args.nproc}")
+        if distributed.launched():
+            raise RecipeError("--nproc starts torchrun, and this process already runs under it "
+                              f"(WORLD_SIZE={os.environ.get('WORLD_SIZE')}); leave --nproc out")
+        command = distributed.torchrun_command(args.nproc, without_nproc(args.argv))
+        os.execv(command[0], command)  # torchrun replaces this process: signals reach it directly
     if args.init is not None:
         if args.resume is not None:
             raise RecipeError("--init starts a new run from a checkpoint's weights; a resumed run continues its own")
         args.overrides = [*args.overrides, f"agent.init={json.dumps(args.init)}"]
     return run.train(args.recipe, overrides=args.overrides, profile=args.profile, run_dir=args.run_dir,
                      runs_root=args.runs_root, overwrite=args.overwrite, resume=args.resume, device=args.device,
-                     quiet=args.quiet, update_threads=args.update_threads, progress=not args.no_progress)
+                     quiet=args.quiet, update_threads=args.update_threads, progress=not args.no_progress,
+                     grad_sync=args.grad_sync, dist_timeout=args.dist_timeout)
+
+
+def without_nproc(argv: list[str]) -> list[str]:
+    """The command line without its --nproc option (spelt as argparse accepts it: abbreviated,
+    with its value apart or after "="): what each process torchrun starts is given."""
+    out, skip = [], False
+    for token in argv:
+        if skip:
+            skip = False
+            continue
+        name, eq, _ = token.partition("=")
+        if len(name) > 3 and "--nproc".startswith(name):
+            skip = not eq
+            continue
+        out.append(token)
+    return out
 
 
 def cmd_eval(args) -> int:
@@ -203,8 +241,14 @@ def cmd_generate(args) -> int:
     return run.generate_checkpoint(args.target, which=args.checkpoint, seconds=args.seconds, seed=args.seed,
                                    noise_scale=args.noise_scale, motions=args.motions, out=args.out,
                                    device=args.device, progress=not args.no_progress)
+
+
 def cmd_pmcp(args) -> int:
     from .pmcp import pmcp
+
+    if distributed.launched():  # its mining and evaluations between stages would run in every process
+        raise RecipeError("smpl-envs pmcp runs in one process, not under torchrun; a stage can be trained "
+                          "data-parallel with smpl-envs train --nproc N")
 
     return pmcp(args.recipe, overrides=args.overrides, run_dir=args.run_dir, runs_root=args.runs_root,
                 overwrite=args.overwrite, device=args.device, quiet=args.quiet, update_threads=args.update_threads,

@@ -12,6 +12,11 @@ class RunningNorm(nn.Module):
     epsilon so the first batch defines the statistics almost entirely.
     """
 
+    # In a data-parallel job the agent sets this, per module, to `DataParallel.reduce_moments`:
+    # each update then folds in the moments of every process's batch together, so all processes
+    # keep the statistics one process seeing every batch would. Not state: never saved.
+    reduce_moments = None
+
     def __init__(self, shape: int | tuple[int, ...], clip: float | None = 10.0, eps: float = 1e-8):
         super().__init__()
         shape = (shape,) if isinstance(shape, int) else tuple(shape)
@@ -23,12 +28,19 @@ class RunningNorm(nn.Module):
     @torch.no_grad()
     def update(self, x: torch.Tensor) -> None:
         x = x.reshape(-1, *self.mean.shape)
-        if x.shape[0] == 0:
-            return
-        # One batch's moments are exact enough in its own precision (a float32 batch: half the
-        # memory traffic of converting it first); the running combination is float64.
-        batch_var, batch_mean = (m.to(torch.float64) for m in torch.var_mean(x, 0, correction=0))
         n = x.shape[0]
+        if n:
+            # One batch's moments are exact enough in its own precision (a float32 batch: half the
+            # memory traffic of converting it first); the running combination is float64.
+            batch_var, batch_mean = (m.to(torch.float64) for m in torch.var_mean(x, 0, correction=0))
+        elif self.reduce_moments is None:
+            return
+        else:  # an empty batch here still takes part in the job's combination
+            batch_mean, batch_var = torch.zeros_like(self.mean), torch.zeros_like(self.var)
+        if self.reduce_moments is not None:
+            n, batch_mean, batch_var = self.reduce_moments(n, batch_mean, batch_var)
+            if n == 0:
+                return
         delta, total = batch_mean - self.mean, self.count + n
         # Chan et al.'s parallel combination of two (mean, M2) summaries.
         m2 = self.var * self.count + batch_var * n + delta.square() * self.count * n / total

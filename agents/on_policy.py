@@ -14,6 +14,18 @@ subclass of `OnPolicyConfig`), `_update` (required), `_build` (more networks),
 `_rollout_hooks` (a `rollout.RolloutHooks` the collector calls at reset, every step and at the
 end of a rollout), `_shape_rewards` (before GAE), and `_extra_state` / `_load_extra_state`
 (checkpointed state).
+
+Data-parallel training (`distributed`): in a torch.distributed job (torchrun) every process
+trains its own copy of the agent on its own worlds, and the base keeps the copies identical.
+`learn` starts every rank from rank 0's weights and hooks the normalisers of the trained
+networks (`_replicated_modules`) to combine their statistics across ranks; rollouts count the
+steps and gather the episodes of every rank; an update takes the minibatch count the ranks
+agree on (`_minibatches`) and averages every backward pass's gradients
+(`_gradient_sync(module, optimizer)`: its `loss` and `backward` replace the plain calls);
+training stops on every rank when a callback on one stops it. Rank r seeds torch with seed + r
+and its env's first reset with seed + r x n_envs (so vector envs that seed world i with
+seed + i never repeat another rank's worlds). The env's worlds and `batch_size` are per process. In one
+process all of it is a no-op: training is exactly as without it.
 """
 from __future__ import annotations
 
@@ -31,15 +43,18 @@ from gymnasium.vector import VectorEnv
 
 from smpl_envs.progress import pbar
 
+from . import distributed
 from .callbacks import as_callback
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import AgentConfig
+from .distributed import GRAD_SYNCS, GradientSync
 from .logger import Logger
 from .networks import ActorCritic, Policy, action_box
+from .normalizer import RunningNorm
 from .optim import adam
 from .policies import (PolicyClassError, checkpoint_policy, make_policy, policy_class, policy_record,
                        split_former_hyperparams)
-from .rollout import RolloutBuffer, RolloutCollector, RolloutHooks, torch_threads
+from .rollout import RolloutBuffer, RolloutCollector, RolloutHooks, minibatches, torch_threads
 from .vec import make_vec_env
 
 
@@ -112,7 +127,11 @@ class OnPolicyAlgorithm:
         device: "auto", "cpu", "cuda", ...
         verbose: 1 prints a table per log, 0 is silent.
         log_dir, tensorboard: where progress.csv and TensorBoard files go (None: stdout only).
+            In a data-parallel job only rank 0 logs (the others are silent).
         update_threads: torch CPU threads during the update (None: as set).
+        grad_sync: how a data-parallel job averages gradients, "allreduce" (one all-reduce of
+            the flattened gradient after each backward pass) or "ddp" (DistributedDataParallel;
+            every trainable parameter must take part in every loss); no effect in one process.
         **hyperparams: the fields of the settings dataclass (`config_class`), each with its
             default and meaning there. They are readable (and writable) as attributes too:
             `model.learning_rate` is `model.config.learning_rate`.
@@ -127,11 +146,18 @@ class OnPolicyAlgorithm:
     def __init__(self, env: str | gym.Env | VectorEnv | None, *, n_envs: int = 1, env_kwargs: dict | None = None,
                  policy: str | type[Policy] | Policy | None = None, policy_kwargs: dict | None = None,
                  device: str | torch.device = "auto", verbose: int = 1, log_dir: str | Path | None = None,
-                 tensorboard: bool = True, update_threads: int | None = None, **hyperparams):
+                 tensorboard: bool = True, update_threads: int | None = None, grad_sync: str = "allreduce",
+                 **hyperparams):
         owner = type(self).__name__
         hyperparams, policy_kwargs = _policy_kwargs(owner, self.default_policy, policy, policy_kwargs, hyperparams)
         self.config = self.config_class.from_kwargs(owner, hyperparams)
         self.device = resolve_device(device)
+        if grad_sync not in GRAD_SYNCS:
+            raise ValueError(f"grad_sync must be one of {GRAD_SYNCS}, got {grad_sync!r}")
+        self.grad_sync = grad_sync
+        # The job this process trains in (one process unless torch.distributed runs several).
+        self.data_parallel = distributed.current(self.device)
+        self._grad_syncs: dict[int, GradientSync] = {}
         # Torch CPU threads while updating: the simulator's threads sit idle then, so the update
         # may use every core even when collection runs torch on one (None: leave torch's setting).
         if update_threads is not None and (isinstance(update_threads, bool) or not isinstance(update_threads, int)
@@ -145,13 +171,14 @@ class OnPolicyAlgorithm:
         self.iteration = 0
         self.episodes: deque = deque(maxlen=100)  # (return, length) of the latest episodes
         self._collector: RolloutCollector | None = None  # made on the first rollout
+        self._rank_episodes: deque = deque()  # in a job: this rank's episodes of the rollout, to gather
         self.rollout_buffer: RolloutBuffer | None = None
         # The policy to make once the env's spaces are known (a built one is taken as it is).
         built = policy if isinstance(policy, Policy) else None
         if built is None:
             self.policy_class, self.policy_kwargs = policy_class(policy or self.default_policy), policy_kwargs
         if self.config.seed is not None:
-            torch.manual_seed(self.config.seed)
+            torch.manual_seed(self.data_parallel.seed(self.config.seed))
         if env is not None:
             self.set_env(env, n_envs=n_envs, env_kwargs=env_kwargs)
             self._build(self.env.single_observation_space.shape[0], self.env.single_action_space, built)
@@ -194,6 +221,7 @@ class OnPolicyAlgorithm:
         params = [p for p in self.policy.parameters() if p.requires_grad]  # not frozen parts
         self.optimizer = adam(params, lr=self.config.learning_rate, eps=1e-5)
         self._collector = None
+        self._grad_syncs = {}
 
     def set_env(self, env, n_envs: int = 1, env_kwargs: dict | None = None,
                 override_settings: Iterable[str] = ()) -> None:
@@ -237,7 +265,9 @@ class OnPolicyAlgorithm:
         self._collector = None  # the next rollout starts with a reset of this env
 
     def set_logger(self, log_dir: str | Path | None = None, tensorboard: bool = True) -> None:
-        self.logger = Logger(log_dir, stdout=self.verbose > 0, tensorboard=tensorboard)
+        if not self.data_parallel.main:  # one writer per job: rank 0's logs speak for all
+            log_dir, tensorboard = None, False
+        self.logger = Logger(log_dir, stdout=self.verbose > 0 and self.data_parallel.main, tensorboard=tensorboard)
 
     def close(self) -> None:
         """Flush the logs and close the env's worlds."""
@@ -268,21 +298,23 @@ class OnPolicyAlgorithm:
     # ------------------------------------------------------------------ training loop
     def learn(self, total_timesteps: int, callback=None, progress_bar: bool = True,
               reset_num_timesteps: bool = True, log_interval: int = 1):
-        """Train for `total_timesteps` more env steps (all worlds counted). With
-        `reset_num_timesteps=False` the step count, iteration and episode statistics carry on,
-        as when resuming from a checkpoint. Returns the agent."""
+        """Train for `total_timesteps` more env steps (all worlds counted, of every process in a
+        data-parallel job). With `reset_num_timesteps=False` the step count, iteration and
+        episode statistics carry on, as when resuming from a checkpoint. Returns the agent."""
         if self.env is None:
             raise RuntimeError("no env attached; pass one to the constructor, to load(), or set_env()")
         if reset_num_timesteps:
             self.num_timesteps, self.iteration = 0, 0
             self.episodes.clear()
+            self._rank_episodes.clear()
         target = self.num_timesteps + int(total_timesteps)
         callback = as_callback(callback)
+        self._replicate()
         if self._collector is None:
             self._start_collector(seed=self.config.seed if reset_num_timesteps else None)
         callback.on_training_start(self)
-        bar = pbar(total=target, initial=self.num_timesteps, disable=not progress_bar, unit="step",
-                   dynamic_ncols=True, desc=type(self).__name__)
+        bar = pbar(total=target, initial=self.num_timesteps, disable=not progress_bar or not self.data_parallel.main,
+                   unit="step", dynamic_ncols=True, desc=type(self).__name__)
         start_steps, t0 = self.num_timesteps, time.perf_counter()
         try:
             while self.num_timesteps < target:
@@ -299,7 +331,8 @@ class OnPolicyAlgorithm:
                 self.logger.record("time/fps", (self.num_timesteps - start_steps) / max(elapsed, 1e-9))
                 self.logger.record("time/iterations", self.iteration)
                 self.logger.record("time/elapsed_s", elapsed)
-                keep_going = callback.on_iteration(self) is not False
+                # One rank's callback stopping (a time budget, a signal) stops every rank.
+                keep_going = self.data_parallel.all_true(callback.on_iteration(self) is not False)
                 if self.iteration % log_interval == 0 or not keep_going or self.num_timesteps >= target:
                     self.logger.dump(self.num_timesteps)
                 if not keep_going:
@@ -310,10 +343,44 @@ class OnPolicyAlgorithm:
         return self
 
     def _start_collector(self, seed: int | None) -> None:
-        """A collector on the attached env, which it resets (with `seed`)."""
-        self._collector = RolloutCollector(self.env, self.policy, self.episodes, self._rollout_hooks(), self.device,
+        """A collector on the attached env, which it resets (with `seed`, this rank's in a job)."""
+        episodes = self._rank_episodes if self.data_parallel.enabled else self.episodes
+        self._collector = RolloutCollector(self.env, self.policy, episodes, self._rollout_hooks(), self.device,
                                            value_threads=self.update_threads)
-        self._collector.reset(seed=seed)
+        self._collector.reset(seed=self.data_parallel.seed(seed, stride=self.env.num_envs))
+
+    # ------------------------------------------------------------------ data parallelism
+    def _replicated_modules(self) -> list[torch.nn.Module]:
+        """The networks every rank of a job trains a copy of (subclasses add theirs)."""
+        return [self.policy]
+
+    def _replicate(self) -> None:
+        """In a job: every rank takes rank 0's weights and statistics, and the normalisers of
+        the trained networks combine their updates across ranks."""
+        dp = self.data_parallel
+        if not dp.enabled:
+            return
+        modules = self._replicated_modules()
+        dp.broadcast_modules(modules)
+        for module in modules:
+            for m in module.modules():
+                if isinstance(m, RunningNorm):
+                    m.reduce_moments = dp.reduce_moments
+
+    def _gradient_sync(self, module: torch.nn.Module, optimizer: torch.optim.Optimizer) -> GradientSync:
+        """How the gradients of `module` that `optimizer` steps are averaged across the job's
+        ranks (made on first use; in one process plain `loss` and `backward` calls)."""
+        sync = self._grad_syncs.get(id(module))
+        if sync is None or sync.module is not module:
+            params = [p for g in optimizer.param_groups for p in g["params"]]
+            sync = self._grad_syncs[id(module)] = self.data_parallel.gradient_sync(module, params, self.grad_sync)
+        return sync
+
+    def _minibatches(self, data: dict[str, torch.Tensor], batch_size: int):
+        """One epoch over `data` in shuffled minibatches (`rollout.minibatches`), as many on
+        every rank of a job."""
+        n = len(next(iter(data.values())))
+        return minibatches(data, batch_size, self.data_parallel.minibatch_count(n, batch_size))
 
     def _set_learning_rate(self, target: int) -> None:
         lr = self.config.learning_rate
@@ -334,7 +401,11 @@ class OnPolicyAlgorithm:
         if buf is None or not buf.matches(cfg.n_steps, n_envs, self.obs_dim, act_dim):
             buf = self.rollout_buffer = RolloutBuffer(cfg.n_steps, n_envs, self.obs_dim, act_dim, self.device)
         last_value, reward_terms = self._collector.collect(buf)
-        self.num_timesteps += cfg.n_steps * n_envs
+        self.num_timesteps += self.data_parallel.sum(cfg.n_steps * n_envs)
+        if self.data_parallel.enabled:  # every rank's episodes, in rank order: the same statistics everywhere
+            ended = torch.tensor(list(self._rank_episodes), dtype=torch.float64).reshape(-1, 2)
+            self._rank_episodes.clear()
+            self.episodes.extend((r, int(n)) for r, n in self.data_parallel.gather_rows(ended).tolist())
         buf.rewards.copy_(self._shape_rewards(buf))
         buf.compute_advantages(last_value, cfg.gamma, cfg.gae_lambda)
 
@@ -441,6 +512,7 @@ class OnPolicyAlgorithm:
         agent.episodes.extend(tuple(e) for e in ckpt["episodes"])
         agent.env_id, agent.env_kwargs = ckpt["env"]["id"], dict(ckpt["env"]["kwargs"] or {})
         torch.set_rng_state(ckpt["torch_rng"].cpu())
+        agent.data_parallel.reseed_torch()  # every rank loaded rank 0's state; each needs its own
         if isinstance(env, str) and env == "auto":
             if agent.env_id is None:
                 raise ValueError("the checkpoint records no env id; pass an env")

@@ -59,34 +59,13 @@ class PPO(OnPolicyAlgorithm):
         stats: dict[str, list[float]] = {k: [] for k in ("policy_loss", "value_loss", "entropy", "bounds_loss",
                                                          "approx_kl", "clip_fraction", "grad_norm")}
         stop = False
+        sync = self._gradient_sync(pol, self.optimizer)  # averages gradients across a job's ranks
         for _ in range(cfg.n_epochs):
-            for mb in buf.minibatches(cfg.batch_size):
-                ev = pol.evaluate_actions(mb["obs"], mb["actions"])
-                log_ratio = ev.log_prob - mb["log_probs"]
-                ratio = log_ratio.exp()
-                adv = mb["advantages"]
-                if cfg.normalize_advantage and len(adv) > 1:
-                    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-                policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)).mean()
-
-                # The critic learns in its own units (normalised returns when normalize_value).
-                v_pred = ev.value
-                v_target, v_old = pol.value_targets(mb["returns"]), pol.value_targets(mb["values"])
-                value_loss = (v_pred - v_target).square()
-                if cfg.clip_range_vf is not None:
-                    v_clip = v_old + (v_pred - v_old).clamp(-cfg.clip_range_vf, cfg.clip_range_vf)
-                    value_loss = torch.max(value_loss, (v_clip - v_target).square())
-                value_loss = 0.5 * value_loss.mean()
-
-                entropy = ev.entropy.mean()
-                mu = ev.mean
-                bound = cfg.bounds_loss_limit
-                bounds_loss = ((mu - bound).clamp(min=0).square() + (mu + bound).clamp(max=0).square()).sum(-1).mean()
-                loss = (policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy
-                        + cfg.bounds_loss_coef * bounds_loss)
-
+            for mb in self._minibatches(data, cfg.batch_size):
+                terms = sync.loss(lambda: self._loss(mb))
+                loss, policy_loss, value_loss, entropy, bounds_loss, ratio, log_ratio = terms
                 self.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
+                sync.backward(loss)
                 grad_norm = torch.nn.utils.clip_grad_norm_(pol.parameters(), cfg.max_grad_norm)
                 self.optimizer.step()
 
@@ -98,7 +77,8 @@ class PPO(OnPolicyAlgorithm):
                     stats[k].append(float(v.detach()))
                 stats["approx_kl"].append(approx_kl)
                 stats["clip_fraction"].append(clip_fraction)
-                if cfg.target_kl is not None and approx_kl > 1.5 * cfg.target_kl:
+                # Every rank of a job stops on the same step: on the KL of all their data.
+                if cfg.target_kl is not None and self.data_parallel.mean(approx_kl) > 1.5 * cfg.target_kl:
                     stop = True
                     break
             if stop:
@@ -114,6 +94,33 @@ class PPO(OnPolicyAlgorithm):
             self.logger.record("train/std", float(std.mean()))
         flush_subnormals_(self.optimizer)
         self._update_extra(buf)
+
+    def _loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
+        """(loss, policy loss, value loss, entropy, bounds loss, ratio, log ratio) of a minibatch."""
+        cfg, pol = self.config, self.policy
+        ev = pol.evaluate_actions(mb["obs"], mb["actions"])
+        log_ratio = ev.log_prob - mb["log_probs"]
+        ratio = log_ratio.exp()
+        adv = mb["advantages"]
+        if cfg.normalize_advantage and len(adv) > 1:
+            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+        policy_loss = torch.max(-adv * ratio, -adv * ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range)).mean()
+
+        # The critic learns in its own units (normalised returns when normalize_value).
+        v_pred = ev.value
+        v_target, v_old = pol.value_targets(mb["returns"]), pol.value_targets(mb["values"])
+        value_loss = (v_pred - v_target).square()
+        if cfg.clip_range_vf is not None:
+            v_clip = v_old + (v_pred - v_old).clamp(-cfg.clip_range_vf, cfg.clip_range_vf)
+            value_loss = torch.max(value_loss, (v_clip - v_target).square())
+        value_loss = 0.5 * value_loss.mean()
+
+        entropy = ev.entropy.mean()
+        mu = ev.mean
+        bound = cfg.bounds_loss_limit
+        bounds_loss = ((mu - bound).clamp(min=0).square() + (mu + bound).clamp(max=0).square()).sum(-1).mean()
+        loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy + cfg.bounds_loss_coef * bounds_loss
+        return loss, policy_loss, value_loss, entropy, bounds_loss, ratio, log_ratio
 
     def _update_extra(self, buf: RolloutBuffer) -> None:
         """Anything else to train on the rollout, after the policy's update."""

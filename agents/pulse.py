@@ -56,7 +56,7 @@ from .normalizer import RunningNorm
 from .on_policy import OnPolicyAlgorithm, OnPolicyConfig
 from .optim import flush_subnormals_
 from .policies import load_policy, register_policy
-from .rollout import RolloutBuffer, RolloutHooks, minibatches
+from .rollout import RolloutBuffer, RolloutHooks
 
 LABELS = "teacher_actions"  # the rollout buffer's field of the teacher's (absolute) actions
 REF_DOF = "next_ref_dof_pos"  # the env's info key, and the buffer's field, of the reference angles
@@ -302,23 +302,28 @@ class PULSE(OnPolicyAlgorithm):
                          cfg.kl_anneal_end)
         stats: dict[str, list[float]] = {k: [] for k in ("action_loss", "kl", "smoothness", "loss", "grad_norm",
                                                          "encoder_std", "prior_std")}
+        sync = self._gradient_sync(pol, self.optimizer)  # averages gradients across a job's ranks
+
+        def losses(i: torch.Tensor) -> tuple[torch.Tensor, ...]:
+            nobs = obs[i]
+            mu, logvar, prior_mu, prior_logvar = pol.distributions(nobs)
+            z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)
+            action_loss = (pol.decode(nobs, z) - labels[i]).square().mean()
+            kl = gaussian_kl(mu, logvar, prior_mu, prior_logvar).mean()
+            prev = has_prev[i]
+            if prev.any():
+                mu_prev = pol.distributions(obs[i[prev] - N])[0]
+                smoothness = (mu[prev] - mu_prev).square().mean()
+            else:
+                smoothness = torch.zeros((), device=obs.device)
+            loss = action_loss + cfg.smooth_weight * smoothness + beta * kl
+            return loss, action_loss, kl, smoothness, logvar, prior_logvar
+
         for _ in range(cfg.n_epochs):
-            for mb in minibatches({"index": index}, cfg.batch_size):
-                i = mb["index"]
-                nobs = obs[i]
-                mu, logvar, prior_mu, prior_logvar = pol.distributions(nobs)
-                z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)
-                action_loss = (pol.decode(nobs, z) - labels[i]).square().mean()
-                kl = gaussian_kl(mu, logvar, prior_mu, prior_logvar).mean()
-                prev = has_prev[i]
-                if prev.any():
-                    mu_prev = pol.distributions(obs[i[prev] - N])[0]
-                    smoothness = (mu[prev] - mu_prev).square().mean()
-                else:
-                    smoothness = torch.zeros((), device=obs.device)
-                loss = action_loss + cfg.smooth_weight * smoothness + beta * kl
+            for mb in self._minibatches({"index": index}, cfg.batch_size):
+                loss, action_loss, kl, smoothness, logvar, prior_logvar = sync.loss(lambda: losses(mb["index"]))
                 self.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
+                sync.backward(loss)
                 grad_norm = torch.nn.utils.clip_grad_norm_(pol.parameters(), cfg.max_grad_norm)
                 self.optimizer.step()
                 for k, v in (("action_loss", action_loss), ("kl", kl), ("smoothness", smoothness), ("loss", loss),

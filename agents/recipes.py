@@ -69,7 +69,8 @@ META_KEYS = ("recipe_name", "recipe_path", "profile", "overrides")
 RESERVED_HYPERPARAMS = {
     "n_envs": "env.num_envs", "env_kwargs": "env.kwargs", "seed": "train.seed", "device": "train.device",
     "verbose": "the command line (--quiet)", "log_dir": "the run directory", "tensorboard": "the run directory",
-    "update_threads": "the command line (--update-threads)", "policy": "agent.policy.class",
+    "update_threads": "the command line (--update-threads)", "grad_sync": "the command line (--grad-sync)",
+    "policy": "agent.policy.class",
     "policy_kwargs": "agent.policy.kwargs",
 }
 

@@ -96,23 +96,34 @@ class RolloutBuffer:
             self._flat = {n: getattr(self, n).reshape(-1, *getattr(self, n).shape[2:])[keep] for n in names}
         return self._flat
 
-    def minibatches(self, batch_size: int) -> Iterator[dict[str, torch.Tensor]]:
+    def minibatches(self, batch_size: int, count: int | None = None) -> Iterator[dict[str, torch.Tensor]]:
         """One epoch over the valid transitions in shuffled minibatches (`minibatches`)."""
-        return minibatches(self.transitions(), batch_size)
+        return minibatches(self.transitions(), batch_size, count)
 
 
-def minibatches(data: dict[str, torch.Tensor], batch_size: int) -> Iterator[dict[str, torch.Tensor]]:
+def minibatches(data: dict[str, torch.Tensor], batch_size: int,
+                count: int | None = None) -> Iterator[dict[str, torch.Tensor]]:
     """One epoch over `data` (tensors of equal length) in shuffled minibatches: the
     round(n / batch_size) (at least one) equal shares of the n transitions, each within one of
     the others' size. Every transition is used: a rollout with a few invalid (reset-only) steps
     has slightly fewer than n_steps x n_envs transitions, and cutting it into whole
-    `batch_size` pieces would drop almost a minibatch of them every epoch."""
+    `batch_size` pieces would drop almost a minibatch of them every epoch. `count`: that many
+    shares instead (at most n; the ranks of a data-parallel job agree on one,
+    `distributed.DataParallel.minibatch_count`)."""
     n = len(next(iter(data.values())))
-    if n == 0:
+    if count is None:
+        count = minibatch_count(n, batch_size)
+    if n == 0 or count == 0:
         return
     perm = torch.randperm(n, device=next(iter(data.values())).device)
-    for i in torch.tensor_split(perm, max(1, round(n / batch_size))):
+    for i in torch.tensor_split(perm, count):
         yield {k: v[i] for k, v in data.items()}
+
+
+def minibatch_count(n: int, batch_size: int) -> int:
+    """How many minibatches `minibatches` cuts n transitions into: round(n / batch_size), at
+    least one; none for no transitions."""
+    return max(1, round(n / batch_size)) if n > 0 else 0
 
 
 def gae(rewards: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, last_value: torch.Tensor,

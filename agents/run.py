@@ -31,6 +31,17 @@ prints the resume command (exit status 130 / 143). A resume starts from last.pt 
 does not read back intact, from the newest intact ckpt_*.pt (saying so); its logs continue from
 that checkpoint's step, replacing whatever a killed run logged after it; temporary files of
 interrupted saves are removed.
+
+Data-parallel runs (`agents.distributed`): under torchrun (WORLD_SIZE > 1) `train` joins the
+job's process group and every process trains its copy of the agent on its own worlds. Rank 0
+is the run: it checks the settings and the run directory, holds the lock, writes config.yaml,
+logs, checkpoints, evaluations and videos; the other ranks build the same agent (a resume: from
+the checkpoint rank 0 chose, on a filesystem they share) and write nothing. env.num_envs and
+the batch sizes are per process; train.total_timesteps, checkpoint_every and eval.every count the
+steps of all processes. A signal stops every rank at the end of the iteration it arrived in
+(at once while rank 0 evaluates or saves, as nothing collective runs then), and rank 0 saves
+last.pt; a process that dies or stalls ends the others with a `PeerError` after the collective
+timeout (rank 0 saves last.pt, exit status PEER_LOST).
 """
 from __future__ import annotations
 
@@ -45,7 +56,10 @@ from typing import Any, Iterable
 
 from smpl_envs.backend import MissingExtraError
 
+from . import distributed
+from .callbacks import Callback
 from .checkpoint import NO_SPACE, DiskFullError, clean_stale_temp_files, load_checkpoint, newest_readable_checkpoint
+from .distributed import DEFAULT_TIMEOUT_S, DataParallel, PeerError
 from .plot import EmptyLogError, plot_run, read_progress
 from .recipes import (LOCK_NAME, RecipeError, RunLock, apply_overrides, check_run_dir_free, check_writable,
                       find_checkpoint, in_use_message, is_unused_run_dir, live_run_pid, load_recipe, make_run_dir,
@@ -58,6 +72,7 @@ FIXED_ON_RESUME = ("env.id", "agent.class", "agent.policy") + tuple(
 INTERRUPTED = 130  # the shell's status for a SIGINT
 TERMINATED = 143   # and for a SIGTERM
 DISK_FULL = 74     # sysexits.h's EX_IOERR: a write failed, here for want of space
+PEER_LOST = 69     # sysexits.h's EX_UNAVAILABLE: another process of a data-parallel job died or stalled
 
 
 def print_error(message: str) -> None:
@@ -134,24 +149,44 @@ class TrainOptions:
     quiet: bool = False
     update_threads: int | None = None
     progress: bool = True
+    grad_sync: str = "allreduce"
+    dist_timeout: float = DEFAULT_TIMEOUT_S
 
 
 def train(recipe: str | Path | None = None, *, overrides: Iterable[str] = (), profile: str | None = None,
           run_dir: Path | None = None, runs_root: Path = Path("runs"), overwrite: bool = False,
           resume: Path | None = None, device: str | None = None, quiet: bool = False,
-          update_threads: int | None = None, progress: bool = True) -> int:
+          update_threads: int | None = None, progress: bool = True, grad_sync: str = "allreduce",
+          dist_timeout: float = DEFAULT_TIMEOUT_S) -> int:
     """Train `recipe` (a name or a YAML path; `profile`, then the `KEY=VALUE` overrides) into a
     new run directory (`run_dir`, default RUNS_ROOT/<recipe>-<time>; `overwrite` deletes an old
     one first), or continue the run directory `resume` (its config.yaml, with `overrides`) up to
     train.total_timesteps. `device` overrides train.device; `quiet`: no per-iteration table;
-    `update_threads`: torch CPU threads while updating. Returns the exit status: 0, INTERRUPTED,
-    TERMINATED or DISK_FULL."""
+    `update_threads`: torch CPU threads while updating. Under torchrun, one process of a
+    data-parallel job (module docstring): `grad_sync` says how it averages gradients
+    ("allreduce" or "ddp"), `dist_timeout` how many seconds a collective waits for the others.
+    Returns the exit status: 0, INTERRUPTED, TERMINATED, DISK_FULL or PEER_LOST."""
     opts = TrainOptions(recipe, list(overrides), profile, None if run_dir is None else Path(run_dir), Path(runs_root),
-                        overwrite, None if resume is None else Path(resume), device, quiet, update_threads, progress)
+                        overwrite, None if resume is None else Path(resume), device, quiet, update_threads, progress,
+                        grad_sync, dist_timeout)
+    if grad_sync not in distributed.GRAD_SYNCS:
+        raise RecipeError(f"--grad-sync must be one of {', '.join(distributed.GRAD_SYNCS)}, got {grad_sync!r}")
+    if not (isinstance(dist_timeout, (int, float)) and dist_timeout > 0):
+        raise RecipeError(f"--dist-timeout must be a positive number of seconds, got {dist_timeout!r}")
+    joined = distributed.launched() and not distributed.initialized()
+    dp = distributed.init(opts.dist_timeout) if distributed.launched() else distributed.current()
+    try:
+        return _train_main(opts, dp) if dp.main else _train_follower(opts, dp)
+    finally:
+        if joined:
+            distributed.shutdown()
+
+
+def _train_main(opts, dp: DataParallel) -> int:
     # Everything that can fail on a bad setting (the recipe, the env, the agent, the device) is
     # built before the run directory is created or an old one deleted, so a mistake costs nothing.
     prepare = _prepare_resume if opts.resume is not None else _prepare_new
-    recipe, run, agent, evaluator, lock = prepare(opts)
+    recipe, run, agent, evaluator, lock = prepare(opts, dp)
     try:
         return _train(opts, recipe, run, agent, evaluator)
     except BaseException:
@@ -165,11 +200,15 @@ def train(recipe: str | Path | None = None, *, overrides: Iterable[str] = (), pr
         lock.release()
 
 
-def _prepare_new(opts) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
+def _new_recipe(opts) -> dict:
     if opts.recipe is None:
         raise RecipeError("train needs a RECIPE (or --resume RUN_DIR)")
     overrides = opts.overrides + ([f"train.device={opts.device}"] if opts.device else [])
-    recipe = load_recipe(opts.recipe, overrides, opts.profile)
+    return load_recipe(opts.recipe, overrides, opts.profile)
+
+
+def _prepare_new(opts, dp: DataParallel) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
+    recipe = _new_recipe(opts)
     root, name = (opts.run_dir.parent, opts.run_dir.name) if opts.run_dir else (opts.runs_root, None)
     # Refuse before the slow part, not after it.
     if opts.run_dir is None:
@@ -183,7 +222,7 @@ def _prepare_new(opts) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
             if opts.run_dir.is_dir():  # deleted and made again, in its parent
                 check_writable(opts.run_dir.parent, "--run-dir", directory=True)
     _check_train_settings(recipe)
-    agent = _constructed(lambda: _new_agent(opts, recipe), recipe)
+    agent = _constructed(lambda: _new_agent(opts, recipe, dp), recipe)
     lock = None
     try:
         evaluator = _constructed(lambda: Evaluator(recipe, progress=opts.progress), recipe)
@@ -204,7 +243,7 @@ def _prepare_new(opts) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
     return recipe, run, agent, evaluator, lock
 
 
-def _prepare_resume(opts) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
+def _prepare_resume(opts, dp: DataParallel) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
     recipe, run, overrides = _resume_recipe(opts)
     check_writable(run, "--resume", directory=True)
     _check_train_settings(recipe)
@@ -213,7 +252,8 @@ def _prepare_resume(opts) -> tuple[dict, Path, Any, "Evaluator", RunLock]:
     try:
         _clean_temp_files(run / "checkpoints")
         checkpoint = _resume_checkpoint(run)
-        agent = _constructed(lambda: _resume_agent(opts, recipe, checkpoint, overrides), recipe)
+        dp.broadcast_object(str(checkpoint))  # every rank of a job resumes from this one
+        agent = _constructed(lambda: _resume_agent(opts, recipe, checkpoint, overrides, dp), recipe)
     except BaseException:
         lock.release()
         raise
@@ -267,29 +307,92 @@ def _what_was_saved(run: Path) -> str:
 
 
 def _train_until_done(opts, recipe: dict, run: Path, agent, evaluator: "Evaluator") -> int:
+    dp = agent.data_parallel
     print(f"run directory: {run}", flush=True)
+    if dp.enabled:
+        print(describe_data_parallel(agent), flush=True)
     evaluator.history_dir = run / "evals"
     callbacks, eval_cb = _callbacks(recipe, run, evaluator, resuming=opts.resume is not None, agent=agent)
     remaining = recipe["train"]["total_timesteps"] - agent.num_timesteps
-    with _SigtermAsInterrupt() as sigterm:
+    with _SigtermAsInterrupt(deferred=dp.enabled) as signals:
         try:
             if remaining > 0:
-                agent.learn(remaining, callback=callbacks, progress_bar=opts.progress,
+                agent.learn(remaining, callback=signals.callbacks(callbacks), progress_bar=opts.progress,
                             reset_num_timesteps=opts.resume is None, log_interval=recipe["train"]["log_interval"])
             else:
                 print(f"nothing to train: the run is at {agent.num_timesteps:,} of "
                       f"{recipe['train']['total_timesteps']:,} timesteps")
+            if signals.received is not None:  # a data-parallel job stopped together on a signal
+                raise Terminated() if signals.received == signal.SIGTERM else KeyboardInterrupt()
             agent.save(run / "checkpoints" / "last.pt")
         except KeyboardInterrupt as stop:
-            sigterm.disarm()  # a SIGTERM now must not cut short the save below
+            signals.disarm()  # a SIGTERM now must not cut short the save below
             path = agent.save(run / "checkpoints" / "last.pt")
             terminated = isinstance(stop, Terminated)
             print(f"\n{'terminated (SIGTERM)' if terminated else 'interrupted'} at {agent.num_timesteps:,} "
-                  f"timesteps; saved {path}\ncontinue with: smpl-envs train --resume {run}", file=sys.stderr)
+                  f"timesteps; saved {path}\ncontinue with: {resume_command(run, dp)}", file=sys.stderr)
             return TERMINATED if terminated else INTERRUPTED
+        except PeerError as e:
+            signals.disarm()
+            path = agent.save(run / "checkpoints" / "last.pt")
+            if signals.received is not None:  # the others stopped on the same signal and left first
+                print(f"\nterminated at {agent.num_timesteps:,} timesteps; saved {path}\ncontinue with: "
+                      f"{resume_command(run, dp)}", file=sys.stderr)
+                return TERMINATED if signals.received == signal.SIGTERM else INTERRUPTED
+            print_error(f"{e}; saved {path} at {agent.num_timesteps:,} timesteps; continue with: "
+                        f"{resume_command(run, dp)}")
+            return PEER_LOST
     _finish_run(agent, recipe, run, evaluator, eval_cb, progress=opts.progress)
     print(f"run directory: {run}")
     return 0
+
+
+def resume_command(run: Path, dp: DataParallel) -> str:
+    """The command that continues `run` (a data-parallel one in as many processes; any number works)."""
+    return f"smpl-envs train --resume {run}" + (f" --nproc {dp.world_size}" if dp.enabled else "")
+
+
+def describe_data_parallel(agent) -> str:
+    """The printed line that says how a data-parallel job divides the recipe's numbers."""
+    dp, n_envs = agent.data_parallel, agent.env.num_envs
+    batch = getattr(agent.config, "batch_size", None)
+    per_step = f", minibatches of agent.hyperparams.batch_size={batch}" if batch else ""
+    job_step = f", {dp.world_size * batch} transitions per gradient step" if batch else ""
+    return (f"data-parallel: {dp.describe()}, gradients averaged by {agent.grad_sync}; per process: "
+            f"env.num_envs={n_envs} worlds{per_step}; the job: {dp.world_size * n_envs} worlds{job_step}; "
+            "train.total_timesteps, checkpoint_every and eval.every count the steps of all processes")
+
+
+def _train_follower(opts, dp: DataParallel) -> int:
+    """Rank > 0 of a data-parallel job: the agent rank 0 trains, on this process's own worlds,
+    writing nothing (no run directory, logs, checkpoints or evaluations)."""
+    if opts.resume is None:
+        recipe = _new_recipe(opts)
+        _check_train_settings(recipe)
+        agent = _constructed(lambda: _new_agent(opts, recipe, dp), recipe)
+    else:
+        recipe, _, overrides = _resume_recipe(opts)
+        checkpoint = Path(dp.broadcast_object(None))  # the one rank 0 resumes from
+        agent = _constructed(lambda: _resume_agent(opts, recipe, checkpoint, overrides, dp), recipe)
+    try:
+        callbacks, _ = _callbacks(recipe, None, None, resuming=opts.resume is not None, agent=agent)
+        remaining = recipe["train"]["total_timesteps"] - agent.num_timesteps
+        with _SigtermAsInterrupt(deferred=True) as signals:
+            try:
+                if remaining > 0:
+                    agent.learn(remaining, callback=signals.callbacks(callbacks), progress_bar=False,
+                                reset_num_timesteps=opts.resume is None, log_interval=recipe["train"]["log_interval"])
+            except KeyboardInterrupt as stop:
+                return TERMINATED if isinstance(stop, Terminated) else INTERRUPTED
+            except PeerError as e:
+                if signals.received is None:
+                    print_error(str(e))
+                    return PEER_LOST
+            if signals.received is not None:
+                return TERMINATED if signals.received == signal.SIGTERM else INTERRUPTED
+        return 0
+    finally:
+        agent.close()
 
 
 class Terminated(KeyboardInterrupt):
@@ -299,30 +402,71 @@ class Terminated(KeyboardInterrupt):
 
 class _SigtermAsInterrupt:
     """While active, the first SIGTERM raises Terminated; later ones are ignored until
-    `disarm` ends that too. The previous handler comes back on exit."""
+    `disarm` ends that too. The previous handler comes back on exit.
 
-    def __init__(self):
-        self.armed = True
-        self.previous = None
+    `deferred` (a data-parallel job, where a rank leaving in the middle of a collective would
+    leave the others waiting in it): SIGTERM and SIGINT only set `received` (the signal), and
+    the callbacks made with `callbacks` stop training on every rank at the end of the
+    iteration; while those callbacks run (rank 0's evaluations and saves, nothing collective)
+    a signal raises at once, as without `deferred`."""
+
+    def __init__(self, deferred: bool = False):
+        self.armed, self.deferred = True, deferred
+        self.received: int | None = None
+        self.immediate = False
+        self.previous: dict[int, Any] = {}
 
     def _handle(self, signum, frame) -> None:
-        if self.armed:
-            self.armed = False  # one exception: a second SIGTERM must not interrupt the save
-            raise Terminated()
+        if not self.armed:
+            return
+        self.armed = False  # one signal: a second must not interrupt the save
+        if self.deferred and not self.immediate:
+            self.received = signum
+            return
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
     def disarm(self) -> None:
         self.armed = False
+
+    def callbacks(self, callbacks: list) -> list:
+        return [_UntilSignal(self, callbacks)] if self.deferred else callbacks
 
     def __enter__(self) -> "_SigtermAsInterrupt":
         # Python lets only the main thread set handlers (main() called from a worker thread
         # then keeps the default: SIGTERM ends the process).
         if threading.current_thread() is threading.main_thread():
-            self.previous = signal.signal(signal.SIGTERM, self._handle)
+            for signum in (signal.SIGTERM, signal.SIGINT) if self.deferred else (signal.SIGTERM,):
+                self.previous[signum] = signal.signal(signum, self._handle)
         return self
 
     def __exit__(self, *exc) -> None:
-        if self.previous is not None:
-            signal.signal(signal.SIGTERM, self.previous)
+        for signum, handler in self.previous.items():
+            signal.signal(signum, handler)
+
+
+class _UntilSignal(Callback):
+    """A data-parallel job's callbacks: none once a signal has arrived (training stops, on every
+    rank, as `learn` agrees on it); a signal during them interrupts at once."""
+
+    def __init__(self, signals: _SigtermAsInterrupt, callbacks: list):
+        from .callbacks import CallbackList
+
+        self.signals, self.inner = signals, CallbackList(callbacks)
+
+    def on_training_start(self, agent) -> None:
+        self.inner.on_training_start(agent)
+
+    def on_iteration(self, agent) -> bool:
+        if self.signals.received is not None:
+            return False
+        self.signals.immediate = True
+        try:
+            return self.inner.on_iteration(agent)
+        finally:
+            self.signals.immediate = False
+
+    def on_training_end(self, agent) -> None:
+        self.inner.on_training_end(agent)
 
 
 def _check_train_settings(recipe: dict) -> None:
@@ -357,10 +501,18 @@ def _constructed(build, recipe: dict):
                           f"(check env.kwargs, agent.policy, agent.hyperparams and train.device): {e}") from None
 
 
-def _new_agent(opts, recipe: dict):
+def _new_agent(opts, recipe: dict, dp: DataParallel):
     # No logs yet: the run directory does not exist until the agent has been built (_attach_logger).
     return new_agent(recipe, verbose=0 if opts.quiet else 1, log_dir=None, tensorboard=False,
-                     update_threads=opts.update_threads)
+                     update_threads=opts.update_threads, **_job_options(opts, recipe, dp))
+
+
+def _job_options(opts, recipe: dict, dp: DataParallel) -> dict:
+    """A data-parallel process's own constructor arguments: its device (its GPU of the
+    machine's) and how it averages gradients. None in one process."""
+    if not dp.enabled:
+        return {}
+    return {"device": distributed.rank_device(recipe["train"]["device"]), "grad_sync": opts.grad_sync}
 
 
 def _attach_logger(agent, run: Path, resume_step: int | None = None) -> None:
@@ -438,7 +590,7 @@ def _brief(path: Path, reason: str, limit: int = 200) -> str:
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
-def _resume_agent(opts, recipe: dict, checkpoint: Path, overrides: list[str]):
+def _resume_agent(opts, recipe: dict, checkpoint: Path, overrides: list[str], dp: DataParallel):
     import agents
 
     # Hyperparameters changed on this command (a lower learning rate ...) replace the saved ones.
@@ -448,13 +600,15 @@ def _resume_agent(opts, recipe: dict, checkpoint: Path, overrides: list[str]):
     names = {k[len(prefix):].split(".")[0] for k in (o.partition("=")[0].strip() for o in overrides)
              if k.startswith(prefix)}
     changed = {name: hp[name] for name in names if name in hp}
-    return agents.load(checkpoint, env="auto", device=recipe["train"]["device"],
+    return agents.load(checkpoint, env="auto", **{"device": recipe["train"]["device"], **_job_options(opts, recipe, dp)},
                        n_envs=recipe["env"]["num_envs"], env_kwargs=recipe["env"]["kwargs"],
                        verbose=0 if opts.quiet else 1, log_dir=None, tensorboard=False,
                        update_threads=opts.update_threads, **changed)
 
 
-def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool, agent=None):
+def _callbacks(recipe: dict, run: Path | None, evaluator: "Evaluator | None", resuming: bool, agent=None):
+    """The run's callbacks, and its EvalCallback (or None). Without a run directory (rank > 0 of
+    a data-parallel job) only those every rank needs: the curriculum and the time budget."""
     from .callbacks import CheckpointCallback, EvalCallback
 
     callbacks, eval_cb = [], None
@@ -465,9 +619,9 @@ def _callbacks(recipe: dict, run: Path, evaluator: "Evaluator", resuming: bool, 
         if agent is not None:  # now, so the env's first reset already draws from the schedule
             curriculum.on_training_start(agent)
         callbacks.append(curriculum)
-    if recipe["train"]["checkpoint_every"] > 0:
+    if recipe["train"]["checkpoint_every"] > 0 and run is not None:
         callbacks.append(CheckpointCallback(recipe["train"]["checkpoint_every"], run / "checkpoints"))
-    if recipe["eval"]["every"] > 0:
+    if recipe["eval"]["every"] > 0 and run is not None:
         key, minimize = evaluator.protocol.key, evaluator.protocol.minimize
         eval_cb = EvalCallback(recipe["eval"]["every"], evaluator, run / "checkpoints", key=key, minimize=minimize,
                                best=_best_logged(run, key, minimize) if resuming else None)
@@ -724,4 +878,5 @@ def _get_dotted(tree: dict, key: str) -> Any:
 __all__ = ["train", "TrainOptions", "evaluate_checkpoint", "record_checkpoint", "generate_checkpoint", "new_agent",
            "with_checkpoints_loaded",
            "evaluate_agent", "record_video", "Evaluator", "WallClockBudget", "summary_metrics", "FIXED_ON_RESUME",
-           "INTERRUPTED", "TERMINATED", "DISK_FULL", "print_error", "no_space_message"]
+           "INTERRUPTED", "TERMINATED", "DISK_FULL", "PEER_LOST", "print_error", "no_space_message",
+           "describe_data_parallel"]

@@ -11,7 +11,6 @@ from torch.distributions import Normal
 from agents import OnPolicyAlgorithm, Policy, RolloutHooks
 from agents.networks import mlp
 from agents.normalizer import RunningNorm
-from agents.rollout import minibatches
 
 
 class PrimitiveMixer(Policy):
@@ -76,12 +75,13 @@ class Distill(OnPolicyAlgorithm):
     def _update(self, buf):
         labels = buf.extras[TeacherLabels.FIELD]
         data = {"obs": buf.transitions()["obs"], "target": labels.reshape(-1, labels.shape[-1])[buf.valid_mask()]}
-        losses = []
+        losses, sync = [], self._gradient_sync(self.policy, self.optimizer)  # data-parallel ready
         for _ in range(self.config.n_epochs):
-            for mb in minibatches(data, self.config.batch_size):
-                loss = (self.policy.action_distribution(mb["obs"]).mean - mb["target"]).square().mean()
+            for mb in self._minibatches(data, self.config.batch_size):
+                loss = sync.loss(lambda: (self.policy.action_distribution(mb["obs"]).mean
+                                          - mb["target"]).square().mean())
                 self.optimizer.zero_grad(set_to_none=True)
-                loss.backward()
+                sync.backward(loss)
                 torch.nn.utils.clip_grad_norm_(self.policy.parameters(), self.config.max_grad_norm)
                 self.optimizer.step()
                 losses.append(loss.item())

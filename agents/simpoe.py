@@ -360,10 +360,16 @@ class SimPoEPPO(PPO):
         pol, env, cfg = self.policy, self.env, self.config
         if not isinstance(pol, KinematicRefinement):
             raise ValueError(f"refine_pretrain_samples needs the KinematicRefinement policy, not {type(pol).__name__}")
+        if pol.iterations == 0:
+            raise ValueError("refine_pretrain_samples needs a refinement unit (iterations >= 1); set it to 0")
         obs, truth = self._pretraining_pairs(env, samples)
         params = [p for p in pol.refine.parameters() if p.requires_grad]
         opt = torch.optim.Adam(params, lr=cfg.refine_pretrain_lr)
         data = {"obs": obs, "truth": truth}
+        # A data-parallel job: every rank starts from rank 0's weights and steps on the ranks'
+        # averaged gradients, so the unit stays one unit (in one process both are no-ops).
+        self._replicate()
+        sync = self._gradient_sync(pol.refine, opt)
 
         def rms_mm() -> float:
             with torch.no_grad():
@@ -372,21 +378,21 @@ class SimPoEPPO(PPO):
             return float(err.mean().sqrt() * 1000.0)
 
         before = rms_mm()
-        from .rollout import minibatches, torch_threads
+        from .rollout import torch_threads
 
         with torch_threads(self.update_threads):
             for _ in range(cfg.refine_pretrain_epochs):
-                for mb in minibatches(data, cfg.batch_size):
-                    loss = pol.refinement_error(mb["obs"], mb["truth"]).mean()
+                for mb in self._minibatches(data, cfg.batch_size):
+                    loss = sync.loss(lambda: pol.refinement_error(mb["obs"], mb["truth"]).mean())
                     opt.zero_grad(set_to_none=True)
-                    loss.backward()
+                    sync.backward(loss)
                     torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
                     opt.step()
         after = rms_mm()
         self.refine_pretrained = True
         self.logger.record("pretrain/refine_rms_mm_before", before)
         self.logger.record("pretrain/refine_rms_mm_after", after)
-        if self.verbose:
+        if self.verbose and self.data_parallel.main:
             print(f"refinement pretraining on {len(obs)} frames: {before:.1f} mm -> {after:.1f} mm (rms body error)")
         self._collector = None  # the pairs came from stepping the env: the first rollout resets it
         return {"before_mm": before, "after_mm": after}

@@ -9,7 +9,8 @@
 The pieces, for agents and policies built on this machinery: the on-policy base
 (`OnPolicyAlgorithm`, its settings `OnPolicyConfig`; PPO, AMP and PULSE are subclasses), settings
 dataclasses (`PPOConfig`, `AMPConfig`), policies as plug-ins (`Policy`, the default
-`ActorCritic`, PMCP's `Composer` over frozen primitives, `register_policy`, `load_policy` for a
+`ActorCritic`, PMCP's `Composer` over frozen primitives, SimPoE's `KinematicRefinement` (trained by
+`SimPoEPPO`), `register_policy`, `load_policy` for a
 checkpoint's frozen policy), and rollouts
 apart from the update (`RolloutBuffer`, `RolloutCollector`, `RolloutHooks`).
 """
@@ -29,8 +30,9 @@ from .policies import PolicyClassError, load_policy, register_policy
 from .ppo import PPO, PPOConfig
 from .pulse import PULSE, PULSEConfig, PULSEPolicy
 from .rollout import RolloutBuffer, RolloutCollector, RolloutHooks
+from .simpoe import KinematicRefinement, SimPoEPPO, SimPoEPPOConfig
 
-AGENTS = {"PPO": PPO, "AMP": AMP, "PULSE": PULSE}
+AGENTS = {"PPO": PPO, "AMP": AMP, "PULSE": PULSE, "SimPoEPPO": SimPoEPPO}
 
 
 def load(path: str | Path, env=None, **kwargs):
@@ -44,5 +46,5 @@ def load(path: str | Path, env=None, **kwargs):
 
 __all__ = ["PPO", "AMP", "PULSE", "AGENTS", "PULSEConfig", "PULSEPolicy", "LatentActorCritic",
            "load", "Callback", "CallbackList", "CheckpointCallback", "EvalCallback",
-           "Logger", "OnPolicyAlgorithm", "OnPolicyConfig", "PPOConfig", "AMPConfig", "Policy", "ActorCritic",
+           "Logger", "SimPoEPPO", "SimPoEPPOConfig", "KinematicRefinement", "OnPolicyAlgorithm", "OnPolicyConfig", "PPOConfig", "AMPConfig", "Policy", "ActorCritic",
            "PolicyClassError", "register_policy", "Composer", "load_policy", "RolloutBuffer", "RolloutCollector", "RolloutHooks"]

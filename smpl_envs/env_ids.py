@@ -14,4 +14,5 @@ ENV_IDS = {
     "SMPL/VRTracking-v0": ("smpl_envs.envs.vr:VRTrackingVecEnv", None),
     "SMPL/Terrain-v0": ("smpl_envs.envs.terrain:TerrainVecEnv", 300),
     "SMPL/Recovery-v0": ("smpl_envs.envs.recovery:RecoveryVecEnv", 300),
+    "SMPL/VideoPose-v0": ("smpl_envs.envs.videopose:VideoPoseVecEnv", None),
 }

@@ -18,6 +18,7 @@ torch = pytest.importorskip("torch")
 import gymnasium as gym  # noqa: E402
 
 import smpl_envs  # noqa: E402
+import smpl_envs.policy_settings  # noqa: E402
 
 from conftest import check_env_quietly, step_backends_alike  # noqa: E402
 
@@ -249,7 +250,11 @@ def test_the_warp_benchmark_runs(tmp_path):
     assert row["worlds"] == 2 and row["task_steps_per_s"] > 0 and row["ppo_samples_per_s"] > 0
 
 
-@pytest.mark.parametrize("env_id", sorted(smpl_envs.ENV_IDS))
+# Every task that opts in to the backend (VideoPose-v0 is CPU only: tests/test_videopose.py checks its refusal).
+WARP_IDS = sorted(i for i in smpl_envs.ENV_IDS if "warp" in smpl_envs.policy_settings.task_class(i).backends)
+
+
+@pytest.mark.parametrize("env_id", WARP_IDS)
 def test_every_task_runs_on_the_warp_backend(env_id):
     """make_vec on the backend, torch outputs of the CPU env's shapes, NaN isolation, and the env
     checker through gym.make (from a clip's first frame where the task has clips: see above)."""

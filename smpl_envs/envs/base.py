@@ -393,9 +393,10 @@ class HumanoidVecEnv(VectorEnv):
     def step(self, actions):
         b, xp = self.backend, self.backend.xp
         actions = b.asarray(actions)
-        if tuple(actions.shape) != (self.num_envs, len(self.action_scale)):
-            raise ValueError(f"actions must have shape {(self.num_envs, len(self.action_scale))}, "
-                             f"got {tuple(actions.shape)}")
+        # A task may act with more than the 69 PD targets (SimPoE's meta-PD and root force).
+        width = self.single_action_space.shape[0]
+        if tuple(actions.shape) != (self.num_envs, width):
+            raise ValueError(f"actions must have shape {(self.num_envs, width)}, got {tuple(actions.shape)}")
         # A world handed NaN or inf ends its episode as diverged; the others carry on.
         broken = None
         if not xp.isfinite(actions.sum()):

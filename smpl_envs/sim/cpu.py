@@ -12,6 +12,12 @@ The model may hold more than the humanoid (a box to strike, a target marker, a t
 humanoid is read through the builder's `HumanoidAddresses`, and the whole model's state stays
 available as `qpos`, `qvel` and `sensordata`.
 
+Two optional inputs exist for the one task that uses them (SimPoE's, `SMPL/VideoPose-v0`), both
+None otherwise and then never touched: `pd_scales` (N, substeps, 2), per-substep scales of the PD
+gains (meta-PD), and `root_wrench` (N, 6), a force and torque on the pelvis (SimPoE's residual
+root force, the suite's only external force, off unless that task enables it). Set them before a
+`step`; they hold until changed.
+
 A world whose state turns non-finite, whose speeds explode, or that MuJoCo itself resets after a
 numerical warning is reported in the mask `step` returns; the task ends that episode and resets
 only that world.
@@ -27,6 +33,7 @@ import numpy as np
 
 from ..features import BodyState
 from ..humanoid.builder import HumanoidAddresses, humanoid_addresses
+from ..humanoid.skeleton import HINGE_NAMES
 
 # Speeds no humanoid motion reaches (m/s, rad/s): treat them as a diverged simulation.
 MAX_SPEED = 1.0e3
@@ -76,6 +83,9 @@ class CPUSim:
         self._bad = np.zeros(n, bool)
         self._warnings = np.zeros(n, np.int64)  # MuJoCo's bad qpos/qvel/qacc warnings so far
         self._last_warnings = np.zeros(n, np.int64)
+        self.pd_scales: np.ndarray | None = None    # (N, substeps, 2): kp, kd scales per substep
+        self.root_wrench: np.ndarray | None = None  # (N, 6): world force (N) and torque (N m) on the pelvis
+        self._damping = None  # the damping actuators meta-PD needs (found on first use)
         threads = num_threads or min(os.cpu_count() or 1, num_worlds)
         self.num_threads = max(1, min(threads, num_worlds))
         self._slices = [s for s in np.array_split(np.arange(n), self.num_threads) if len(s)]
@@ -117,10 +127,39 @@ class CPUSim:
 
     def _step_slice(self, ids: np.ndarray) -> None:
         m, step1, step2 = self.model, mujoco.mj_step1, mujoco.mj_step2
+        if self.root_wrench is not None:
+            for i in ids:
+                self.datas[i].xfrc_applied[self._root] = self.root_wrench[i]
+        if self.pd_scales is not None:
+            self._step_slice_meta_pd(ids)
+            return
         for i in ids:
             d = self.datas[i]
             d.ctrl[:] = self.ctrl[i]
             for _ in range(self.substeps):
+                step2(m, d)
+                step1(m, d)
+        self._gather(ids, elapsed=self.substeps * m.opt.timestep)
+
+    def _step_slice_meta_pd(self, ids: np.ndarray) -> None:
+        """Substeps with the PD gains scaled per world and substep. kp: the position actuators
+        pull with kp (ctrl - q), so a setpoint of q + s (target - q) pulls with s kp (target - q),
+        still within the actuator's force limit. kd: the joint damping stays as built, and a
+        damping actuator per hinge (force -kd qdot u, not force-limited, so implicitfast
+        integrates it implicitly like the joint damping itself) adds u = s - 1 times it."""
+        m, step1, step2 = self.model, mujoco.mj_step1, mujoco.mj_step2
+        if self._damping is None:
+            self._damping = damping_actuators(m, self.humanoid)
+        pd, damp, q_adr = self.humanoid.actuators, self._damping, self.humanoid.dof_qpos
+        for i in ids:
+            d = self.datas[i]
+            d.ctrl[:] = self.ctrl[i]
+            target = self.ctrl[i, pd]
+            scales = self.pd_scales[i]
+            for k in range(self.substeps):
+                q = d.qpos[q_adr]
+                d.ctrl[pd] = q + scales[k, 0] * (target - q)
+                d.ctrl[damp] = scales[k, 1] - 1.0
                 step2(m, d)
                 step1(m, d)
         self._gather(ids, elapsed=self.substeps * m.opt.timestep)
@@ -167,6 +206,18 @@ class CPUSim:
         if self._pool is not None:
             self._pool.shutdown(wait=False)
             self._pool = None
+
+
+DAMPING_SUFFIX = "_damping"  # the meta-PD damping actuators are named <hinge>_damping
+
+
+def damping_actuators(model: mujoco.MjModel, humanoid: HumanoidAddresses) -> slice:
+    """The slice of the 69 meta-PD damping actuators (hinge order) a task added to `model`."""
+    ids = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n + DAMPING_SUFFIX) for n in HINGE_NAMES])
+    if (ids < 0).any() or not np.array_equal(ids, ids[0] + np.arange(len(ids))):
+        raise ValueError("pd_scales needs the model's damping actuators (<hinge>_damping, contiguous, hinge order); "
+                         "a task adds them when it offers meta-PD")
+    return slice(int(ids[0]), int(ids[0]) + len(ids))
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -49,7 +49,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.distributions import Normal
 
-from .networks import ActionEval, Policy, _sizes, mlp
+from .networks import ActionEval, Policy, ValueCritic, _sizes, mlp
 from .normalizer import RunningNorm
 from .policies import register_policy
 
@@ -75,7 +75,7 @@ def compose_additive(weights: torch.Tensor, mus: torch.Tensor) -> torch.Tensor:
 
 
 @register_policy
-class Composer(Policy):
+class Composer(ValueCritic, Policy):
     """PMCP's composer over frozen `primitives` (module docstring).
 
     Args (after the spaces): primitives (a list of policies for the env's spaces; a recipe
@@ -158,21 +158,13 @@ class Composer(Policy):
     def forward(self, nobs: torch.Tensor) -> tuple[Normal, torch.Tensor]:
         return self.action_distribution(nobs), self.value(nobs)
 
-    def value(self, nobs: torch.Tensor) -> torch.Tensor:
-        v = self.critic(self._input(nobs)).squeeze(-1)
-        return self.value_norm.denormalize(v) if self.value_norm is not None else v
-
-    def value_targets(self, returns: torch.Tensor) -> torch.Tensor:
-        return self.value_norm(returns) if self.value_norm is not None else returns
-
-    def update_value_stats(self, returns: torch.Tensor) -> None:
-        if self.value_norm is not None:
-            self.value_norm.update(returns)
+    def critic_input(self, nobs: torch.Tensor) -> torch.Tensor:
+        return self._input(nobs)
 
     def evaluate_actions(self, nobs: torch.Tensor, actions: torch.Tensor) -> ActionEval:
         dist = self.action_distribution(nobs)
         return ActionEval(dist.log_prob(actions).sum(-1), dist.entropy().sum(-1), dist.mean,
-                          self.critic(self._input(nobs)).squeeze(-1))
+                          self.critic_output(nobs))
 
     def action_std(self) -> torch.Tensor | None:
         return self.log_std.exp() if self.composition == "additive" else None

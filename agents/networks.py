@@ -205,7 +205,36 @@ class Policy(nn.Module):
         return not any(p.requires_grad for p in self.parameters())
 
 
-class ActorCritic(Policy):
+class ValueCritic:
+    """The critic half that ActorCritic, agents.Composer and agents.simpoe.KinematicRefinement
+    share: an MLP `critic` reading `critic_input(nobs)` that predicts the value in units of
+    `value_norm` (running return statistics; None: return units). Listed before `Policy` among
+    a policy's bases so that these methods replace Policy's defaults."""
+
+    critic: nn.Module
+    value_norm: RunningNorm | None
+
+    def critic_input(self, nobs: torch.Tensor) -> torch.Tensor:
+        return nobs
+
+    def critic_output(self, nobs: torch.Tensor) -> torch.Tensor:
+        """(B,) the critic's raw output, in training units: what `evaluate_actions` returns
+        (going through return units and back would only add rounding)."""
+        return self.critic(self.critic_input(nobs)).squeeze(-1)
+
+    def value(self, nobs: torch.Tensor) -> torch.Tensor:
+        v = self.critic_output(nobs)
+        return self.value_norm.denormalize(v) if self.value_norm is not None else v
+
+    def value_targets(self, returns: torch.Tensor) -> torch.Tensor:
+        return self.value_norm(returns) if self.value_norm is not None else returns
+
+    def update_value_stats(self, returns: torch.Tensor) -> None:
+        if self.value_norm is not None:
+            self.value_norm.update(returns)
+
+
+class ActorCritic(ValueCritic, Policy):
     """Gaussian policy N(mu(s), sigma) with a state-independent sigma over [-1, 1]^n, n the env's
     action size, and a value function: separate MLPs, as PHC trains them, both reading the
     normalised observation. Its actions reach the env clamped and rescaled (`Policy.env_action`).
@@ -240,13 +269,6 @@ class ActorCritic(Policy):
         if isinstance(self.obs_norm, RunningNorm):
             self.obs_norm.update(obs)
 
-    def value_targets(self, returns: torch.Tensor) -> torch.Tensor:
-        return self.value_norm(returns) if self.value_norm is not None else returns
-
-    def update_value_stats(self, returns: torch.Tensor) -> None:
-        if self.value_norm is not None:
-            self.value_norm.update(returns)
-
     def distribution(self, nobs: torch.Tensor) -> Normal:
         mu = self.actor(nobs)
         # Validation checks every argument on every call: a tenth of a rollout step's policy time.
@@ -258,16 +280,10 @@ class ActorCritic(Policy):
     def action_distribution(self, nobs: torch.Tensor) -> Normal:
         return self.distribution(nobs)
 
-    def value(self, nobs: torch.Tensor) -> torch.Tensor:
-        v = self.critic(nobs).squeeze(-1)
-        return self.value_norm.denormalize(v) if self.value_norm is not None else v
-
     def evaluate_actions(self, nobs: torch.Tensor, actions: torch.Tensor) -> ActionEval:
-        # The critic's raw output is already in training units; going through return units and
-        # back would only add rounding.
         dist = self.distribution(nobs)
         return ActionEval(dist.log_prob(actions).sum(-1), dist.entropy().sum(-1), dist.mean,
-                          self.critic(nobs).squeeze(-1))
+                          self.critic_output(nobs))
 
     def action_std(self) -> torch.Tensor:
         return self.log_std.detach().exp()

@@ -49,7 +49,7 @@ from smpl_envs.features import SELF_OBS_LAYOUT, layout_slices
 from smpl_envs.humanoid.skeleton import ACTION_SCALE, MEAN_SKELETON, NUM_BODIES, NUM_HINGES, PARENTS
 from smpl_envs.video_features import VIDEO_TASK_LAYOUT
 
-from .networks import ActionEval, Policy, _sizes, mlp
+from .networks import ActionEval, Policy, ValueCritic, _sizes, mlp
 from .normalizer import RunningNorm
 from .policies import register_policy
 from .ppo import PPO, PPOConfig
@@ -217,7 +217,7 @@ def split_observation(obs: torch.Tensor) -> dict[str, torch.Tensor]:
 
 
 @register_policy
-class KinematicRefinement(Policy):
+class KinematicRefinement(ValueCritic, Policy):
     """SimPoE's policy for `SMPL/VideoPose-v0` (module docstring).
 
     Args (after the spaces): iterations (refinement updates; SimPoE: 5; 0: none), refine_hidden
@@ -282,21 +282,10 @@ class KinematicRefinement(Policy):
     def forward(self, nobs: torch.Tensor):
         return self.distribution(nobs), self.value(nobs)
 
-    def value(self, nobs: torch.Tensor) -> torch.Tensor:
-        v = self.critic(nobs).squeeze(-1)
-        return self.value_norm.denormalize(v) if self.value_norm is not None else v
-
-    def value_targets(self, returns: torch.Tensor) -> torch.Tensor:
-        return self.value_norm(returns) if self.value_norm is not None else returns
-
-    def update_value_stats(self, returns: torch.Tensor) -> None:
-        if self.value_norm is not None:
-            self.value_norm.update(returns)
-
     def evaluate_actions(self, nobs: torch.Tensor, actions: torch.Tensor) -> ActionEval:
         dist = self.distribution(nobs)
         return ActionEval(dist.log_prob(actions).sum(-1), dist.entropy().sum(-1), dist.mean,
-                          self.critic(nobs).squeeze(-1))
+                          self.critic_output(nobs))
 
     def action_std(self) -> torch.Tensor:
         return self.log_std.detach().exp()

@@ -100,6 +100,11 @@ def panels_for(columns: dict[str, np.ndarray]) -> list[Panel]:
               [("train/value_loss", "value loss")], "value loss"),
         Panel("Update size", "", [("train/approx_kl", "approx. KL"), ("train/clip_fraction", "clip fraction")],
               log=True),
+        # PULSE's distillation: the action error against the teacher falls by orders of magnitude,
+        # and the KL to the prior measures how much the latent carries: both need a log axis.
+        Panel("Distillation", "action error, KL (per dimension)",
+              [("train/action_loss", "action error vs teacher"), ("train/kl", "KL(E || R)")],
+              [("train/kl_weight", "KL weight"), ("train/encoder_std", "encoder std")], "weight, std", log=True),
         Panel("Throughput", "env steps / s", [("time/fps", "fps")]),
     ]
     out = []

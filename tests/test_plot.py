@@ -30,6 +30,15 @@ def test_goal_task_eval_draws_its_score():
     assert [k for k, _ in task.right] == ["eval/speed_error"]
 
 
+def test_distillation_gets_its_losses_on_a_log_axis():
+    cols = _columns(train__action_loss=[3e-3, 2e-3, 1e-3, 5e-4], train__kl=[1e-5, 1e-3, 1e-2, 5e-2],
+                    train__kl_weight=[0.01, 0.01, 0.005, 0.001])
+    distil = next(p for p in panels_for(cols) if p.title == "Distillation")
+    assert distil.log and [k for k, _ in distil.left] == ["train/action_loss", "train/kl"]
+    assert [k for k, _ in distil.right] == ["train/kl_weight"]  # encoder_std absent from this log
+    assert not any(p.title == "Distillation" for p in panels_for(_columns(train__policy_loss=[1, 1, 1, 1])))
+
+
 def test_a_short_log_renders(tmp_path):
     csv = tmp_path / "logs" / "progress.csv"
     csv.parent.mkdir()

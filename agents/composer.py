@@ -49,7 +49,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.distributions import Normal
 
-from .networks import ActionEval, Policy, ValueCritic, _sizes, mlp
+from .networks import Policy, ValueCritic, _sizes, mlp
 from .normalizer import RunningNorm
 from .policies import register_policy
 
@@ -160,11 +160,6 @@ class Composer(ValueCritic, Policy):
 
     def critic_input(self, nobs: torch.Tensor) -> torch.Tensor:
         return self._input(nobs)
-
-    def evaluate_actions(self, nobs: torch.Tensor, actions: torch.Tensor) -> ActionEval:
-        dist = self.action_distribution(nobs)
-        return ActionEval(dist.log_prob(actions).sum(-1), dist.entropy().sum(-1), dist.mean,
-                          self.critic_output(nobs))
 
     def action_std(self) -> torch.Tensor | None:
         return self.log_std.exp() if self.composition == "additive" else None

@@ -208,8 +208,9 @@ class Policy(nn.Module):
 class ValueCritic:
     """The critic half that ActorCritic, agents.Composer and agents.simpoe.KinematicRefinement
     share: an MLP `critic` reading `critic_input(nobs)` that predicts the value in units of
-    `value_norm` (running return statistics; None: return units). Listed before `Policy` among
-    a policy's bases so that these methods replace Policy's defaults."""
+    `value_norm` (running return statistics; None: return units), and the PPO scoring of
+    actions under `action_distribution` with that critic. Listed before `Policy` among a
+    policy's bases so that these methods replace Policy's defaults."""
 
     critic: nn.Module
     value_norm: RunningNorm | None
@@ -232,6 +233,11 @@ class ValueCritic:
     def update_value_stats(self, returns: torch.Tensor) -> None:
         if self.value_norm is not None:
             self.value_norm.update(returns)
+
+    def evaluate_actions(self, nobs: torch.Tensor, actions: torch.Tensor) -> ActionEval:
+        dist = self.action_distribution(nobs)
+        return ActionEval(dist.log_prob(actions).sum(-1), dist.entropy().sum(-1), dist.mean,
+                          self.critic_output(nobs))
 
 
 class ActorCritic(ValueCritic, Policy):
@@ -279,11 +285,6 @@ class ActorCritic(ValueCritic, Policy):
 
     def action_distribution(self, nobs: torch.Tensor) -> Normal:
         return self.distribution(nobs)
-
-    def evaluate_actions(self, nobs: torch.Tensor, actions: torch.Tensor) -> ActionEval:
-        dist = self.distribution(nobs)
-        return ActionEval(dist.log_prob(actions).sum(-1), dist.entropy().sum(-1), dist.mean,
-                          self.critic_output(nobs))
 
     def action_std(self) -> torch.Tensor:
         return self.log_std.detach().exp()

@@ -49,7 +49,7 @@ from smpl_envs.features import SELF_OBS_LAYOUT, layout_slices
 from smpl_envs.humanoid.skeleton import ACTION_SCALE, MEAN_SKELETON, NUM_BODIES, NUM_HINGES, PARENTS
 from smpl_envs.video_features import VIDEO_TASK_LAYOUT
 
-from .networks import ActionEval, Policy, ValueCritic, _sizes, mlp
+from .networks import Policy, ValueCritic, _sizes, mlp
 from .normalizer import RunningNorm
 from .policies import register_policy
 from .ppo import PPO, PPOConfig
@@ -281,11 +281,6 @@ class KinematicRefinement(ValueCritic, Policy):
 
     def forward(self, nobs: torch.Tensor):
         return self.distribution(nobs), self.value(nobs)
-
-    def evaluate_actions(self, nobs: torch.Tensor, actions: torch.Tensor) -> ActionEval:
-        dist = self.distribution(nobs)
-        return ActionEval(dist.log_prob(actions).sum(-1), dist.entropy().sum(-1), dist.mean,
-                          self.critic_output(nobs))
 
     def action_std(self) -> torch.Tensor:
         return self.log_std.detach().exp()

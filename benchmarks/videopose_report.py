@@ -37,7 +37,7 @@ import smpl_envs
 from smpl_envs.motion import load_motions
 from smpl_envs.motion.estimator_noise import EstimatorNoise, degrade
 from smpl_envs.video_eval import input_result
-from smpl_envs.video_input import VideoLib
+from smpl_envs.motion.video_input import VideoLib
 
 TRACKER_OBS = 934  # Imitation-v0's observation: the first columns of VideoPose-v0's
 COLUMNS = (("no fall", "no_fall", True), ("MPJPE", "mpjpe", False), ("PA-MPJPE", "pa_mpjpe", False),

@@ -44,7 +44,7 @@ from smpl_envs.render import write_video
 from smpl_envs.rotations import quat_from_matrix, quat_inv, quat_mul
 from smpl_envs.humanoid.skeleton import BODY_NAMES, PARENTS
 from smpl_envs.video_eval import input_result
-from smpl_envs.video_input import VideoLib
+from smpl_envs.motion.video_input import VideoLib
 from smpl_envs.video_metrics import format_table, sequence_metrics
 
 ID = "SMPL/VideoPose-v0"

@@ -24,7 +24,7 @@ from . import video_metrics
 from .evaluation import ClipProtocol, EvalResult, _clip_queue
 from .features import rotmat_from_quat
 from .video_features import foot_points, reprojection_residual, weighted_mean
-from .video_input import VideoLib
+from .motion.video_input import VideoLib
 
 # Kwargs of the video task that shape its input: the evaluation builds the input itself.
 _INPUT_KWARGS = ("video", "noise", "noise_scale", "noise_seed")

@@ -12,7 +12,7 @@ from pathlib import Path
 from .motion.estimator_files import load_estimator_output
 from .motion.estimator_noise import EstimatorNoise, degrade_library
 from .motion.library import MotionLib
-from .video_input import VideoInput, VideoLib
+from .motion.video_input import VideoInput, VideoLib
 
 ESTIMATOR_SUFFIXES = (".npz", ".pkl", ".json")
 

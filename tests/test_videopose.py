@@ -22,7 +22,7 @@ from smpl_envs.motion.estimator_files import (EstimatorFileError, export_estimat
                                               write_openpose)
 from smpl_envs.motion.estimator_noise import EstimatorNoise, degrade, degrade_library
 from smpl_envs.video_eval import input_rows
-from smpl_envs.video_input import DETECTED_BODIES, VideoInput, VideoLib
+from smpl_envs.motion.video_input import DETECTED_BODIES, VideoInput, VideoLib
 from conftest import check_env_quietly, seeded_rollouts
 
 ID = "SMPL/VideoPose-v0"

@@ -3,7 +3,7 @@ Yuan et al. 2021; REFERENCE section 7). The humanoid follows a kinematic pose es
 frame while it also sees the 2D keypoints the estimate came with, and gives back motion that is
 physically possible and, with a trained policy, closer to the truth.
 
-Input (`smpl_envs.video_input.VideoLib`), from one of two sources:
+Input (`smpl_envs.motion.video_input.VideoLib`), from one of two sources:
 - `motions=`: any clips of the suite (a clip name, "corpus:train", files, a directory, a list),
   degraded by the seeded estimator model (`smpl_envs.motion.estimator_noise`: jitter, depth
   drift along the camera ray, foot sliding, ground penetration, per-joint rotation error; 2D
@@ -75,7 +75,7 @@ from ..sim.cpu import DAMPING_SUFFIX
 from ..video_eval import VideoProtocol
 from ..video_features import (VIDEO_TASK_LAYOUT, camera_in_heading, foot_points, reprojection_residual, video_obs,
                               weighted_mean)
-from ..video_input import VideoLib
+from ..motion.video_input import VideoLib
 from ..video_sources import video_library
 from .base import HumanoidVecEnv, check_number, fallen
 from .imitation import _merge, mean_body_distance

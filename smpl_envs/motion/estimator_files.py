@@ -57,7 +57,7 @@ from ..camera import Camera
 from ..humanoid.kinematics import forward_kinematics, lowest_point
 from ..humanoid.skeleton import BODY_NAMES, MEAN_SKELETON, NUM_BODIES
 from ..rotations import quat_from_matrix, quat_from_rotvec, quat_to_matrix, quat_to_rotvec
-from ..video_input import VideoInput
+from .video_input import VideoInput
 from .export import local_quat_to_smpl_pose
 from .loaders import MotionFileError, _check, _check_fps, smpl_pose_to_local_quat
 from .motion import FPS

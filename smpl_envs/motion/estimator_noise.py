@@ -1,6 +1,6 @@
 """A seeded model of a monocular video pose estimator: any clip of the suite in, the kinematic
 estimate and 2D keypoints a video pipeline would give for it out, with the clip kept as ground
-truth (`smpl_envs.video_input.VideoInput`).
+truth (`smpl_envs.motion.video_input.VideoInput`).
 
 What a kinematic estimator gets wrong, each a knob of `EstimatorNoise` (defaults below):
 
@@ -45,7 +45,7 @@ from ..camera import Camera, random_camera
 from ..humanoid.kinematics import forward_kinematics
 from ..humanoid.skeleton import MEAN_SKELETON, NUM_BODIES
 from ..rotations import quat_from_rotvec, quat_mul
-from ..video_input import DETECTED_BODIES, VideoInput, VideoLib
+from .video_input import DETECTED_BODIES, VideoInput, VideoLib
 from .library import MotionLib, load_motions
 from .motion import FPS, Motion, RawMotion
 

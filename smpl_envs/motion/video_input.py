@@ -24,11 +24,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .camera import Camera
-from .humanoid.kinematics import forward_kinematics, lowest_point
-from .humanoid.skeleton import BODY_NAMES, MEAN_SKELETON, NUM_BODIES
-from .motion.library import MotionLib
-from .motion.motion import FPS, RawMotion, resample_frames
+from ..camera import Camera
+from ..humanoid.kinematics import forward_kinematics, lowest_point
+from ..humanoid.skeleton import BODY_NAMES, MEAN_SKELETON, NUM_BODIES
+from .library import MotionLib
+from .motion import FPS, RawMotion, resample_frames
 
 DETECTED_NAMES = ("Pelvis", "L_Hip", "L_Knee", "L_Ankle", "L_Toe", "R_Hip", "R_Knee", "R_Ankle", "R_Toe",
                   "Neck", "Head", "L_Shoulder", "L_Elbow", "L_Wrist", "R_Shoulder", "R_Elbow", "R_Wrist")

@@ -9,7 +9,8 @@
 The pieces, for agents and policies built on this machinery: the on-policy base
 (`OnPolicyAlgorithm`, its settings `OnPolicyConfig`; PPO, AMP and PULSE are subclasses), settings
 dataclasses (`PPOConfig`, `AMPConfig`), policies as plug-ins (`Policy`, the default
-`ActorCritic`, PMCP's `Composer` over frozen primitives, SimPoE's `KinematicRefinement` (trained by
+`ActorCritic`, PMCP's `Composer` over frozen primitives and `ProgressiveActorCritic` (a
+progressive-network column beside a frozen primitive), SimPoE's `KinematicRefinement` (trained by
 `SimPoEPPO`), `register_policy`, `load_policy` for a
 checkpoint's frozen policy), and rollouts
 apart from the update (`RolloutBuffer`, `RolloutCollector`, `RolloutHooks`).
@@ -28,6 +29,7 @@ from .networks import ActorCritic, Policy
 from .on_policy import OnPolicyAlgorithm, OnPolicyConfig
 from .policies import PolicyClassError, load_policy, register_policy
 from .ppo import PPO, PPOConfig
+from .progressive import ProgressiveActorCritic
 from .pulse import PULSE, PULSEConfig, PULSEPolicy
 from .rollout import RolloutBuffer, RolloutCollector, RolloutHooks
 from .simpoe import KinematicRefinement, SimPoEPPO, SimPoEPPOConfig
@@ -47,4 +49,4 @@ def load(path: str | Path, env=None, **kwargs):
 __all__ = ["PPO", "AMP", "PULSE", "AGENTS", "PULSEConfig", "PULSEPolicy", "LatentActorCritic",
            "load", "Callback", "CallbackList", "CheckpointCallback", "EvalCallback",
            "Logger", "SimPoEPPO", "SimPoEPPOConfig", "KinematicRefinement", "OnPolicyAlgorithm", "OnPolicyConfig", "PPOConfig", "AMPConfig", "Policy", "ActorCritic",
-           "PolicyClassError", "register_policy", "Composer", "load_policy", "RolloutBuffer", "RolloutCollector", "RolloutHooks"]
+           "PolicyClassError", "register_policy", "Composer", "ProgressiveActorCritic", "load_policy", "RolloutBuffer", "RolloutCollector", "RolloutHooks"]

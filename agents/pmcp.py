@@ -10,7 +10,8 @@ below lists its keys. The pipeline, into one run directory:
    PHC's clip protocol; the clips it fails form Q_hard(0).
 2. primitive k = 1 .. max_primitives, while Q_hard(k-1) is not empty: a training run of the
    `primitive.recipe` started from primitive k-1's weights (`agent.init`, `agents.warm_start`:
-   PHC's weight sharing; progressive-network lateral connections are not built), on the whole set
+   PHC's weight sharing), or with `primitive.lateral: true` a progressive-network column beside
+   the frozen primitive k-1 (`agents.ProgressiveActorCritic`, shaped after it), on the whole set
    with the library's sampling weights putting weight 1 on the clips of Q_hard(k-1) and
    `primitive.rest_weight` (0) on the others (env kwarg `motion_weights`: a sampling weight, not a
    copied subset). It is evaluated on the whole set; the clips of Q_hard(k-1) it fails form
@@ -67,7 +68,8 @@ DEFAULTS: dict[str, Any] = {
     "primitive0": None,         # the first primitive: a shipped name, a .pt file or a run directory
     "max_primitives": 3,        # hard-clip primitives after primitive0 (PHC: 4 primitives in all, recovery one)
     "eval": {"num_envs": 16, "threshold": 0.5, "recovery_trials": 64},
-    "primitive": {"recipe": "tracker_ppo", "set": [], "rest_weight": 0.0},
+    "primitive": {"recipe": "tracker_ppo", "set": [], "rest_weight": 0.0,
+                  "lateral": False},      # True: a progressive column beside the one before; False: its copy
     "recovery": {"recipe": "recovery_tracker_ppo", "set": [], "init": "previous", "checkpoint": None},
     "composer": {"recipe": "composer_ppo", "set": []},
     "perpetual": {"motions": "corpus:test", "minutes": 5.0, "trials": 1, "shoves": True},
@@ -148,6 +150,8 @@ def check_pipeline(raw: dict) -> dict:
         if stage == "recovery" and spec["checkpoint"] is not None:
             continue
         load_recipe(spec["recipe"], spec["set"])  # a bad stage recipe fails now, not hours in
+    if not isinstance(out["primitive"]["lateral"], bool):
+        raise RecipeError(f"primitive.lateral must be true or false, got {out['primitive']['lateral']!r}")
     w = out["primitive"]["rest_weight"]
     if isinstance(w, bool) or not isinstance(w, (int, float)) or w < 0:
         raise RecipeError(f"primitive.rest_weight must be a number >= 0, got {w!r}")
@@ -397,7 +401,24 @@ class Pipeline:
             weights = {r["name"]: weights.get(r["name"], rest) for r in rows}
         kwargs = recipe["env"]["kwargs"]
         kwargs.update(motions=self.spec["motions"], motion_weights=weights)
-        recipe["agent"]["init"] = previous["checkpoint"]
+        if not self.spec["primitive"]["lateral"]:
+            recipe["agent"]["init"] = previous["checkpoint"]
+            return apply_overrides(recipe)
+        # A column beside the frozen previous primitive, shaped after it (agents.progressive).
+        import agents
+        from smpl_envs import policy_settings
+
+        agent = agents.load(previous["checkpoint"], device="cpu", verbose=0, tensorboard=False)
+        theirs = policy_settings.trained_settings(agent.env_id, agent.env_kwargs)
+        mine = policy_settings.trained_settings(recipe["env"]["id"], kwargs)
+        for setting in ACTION_SETTINGS:  # warm_start checks these for a copy; a column needs them too
+            if setting in theirs and theirs[setting] != mine.get(setting):
+                raise RecipeError(f"{previous['name']} was trained with {setting}={theirs[setting]!r}, "
+                                  f"primitive.recipe has {setting}={mine.get(setting)!r}; a column beside it would "
+                                  "read its features under other actions")
+        recipe["agent"]["init"] = None
+        recipe["agent"]["policy"] = {"class": "ProgressiveActorCritic",
+                                     "kwargs": {"previous": {"checkpoint": previous["checkpoint"]}}}
         return apply_overrides(recipe)
 
     def _recovery_recipe(self, last_primitive: str) -> dict:

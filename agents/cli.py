@@ -12,6 +12,7 @@
     smpl-envs record runs/imitation_ppo-<time> --steps 600
     smpl-envs generate pulse --seconds 20                # a PULSE prior's motion, no task
     smpl-envs plot runs/imitation_ppo-<time>
+    smpl-envs plot runs/speed_pulse runs/speed_ppo --label PULSE --label scratch --x minutes --out speed.png
     smpl-envs recipes                                   # the shipped recipes, one line each
     smpl-envs info                                      # versions, GL backend, devices: for bug reports
     smpl-envs pmcp pmcp_corpus                          # PMCP's pipeline, runs/pmcp_corpus/; resumes
@@ -35,7 +36,7 @@ from smpl_envs.backend import MissingExtraError
 
 from . import distributed, run
 from .checkpoint import NO_SPACE
-from .plot import EmptyLogError, plot_run
+from .plot import EmptyLogError, plot_run, plot_runs
 from .recipes import RecipeError, available_recipes, parse_override, recipe_description, recipe_dirs
 from .run import DISK_FULL, INTERRUPTED, PEER_LOST, TERMINATED, no_space_message, print_error  # noqa: F401
 
@@ -173,9 +174,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="auto")
     p.set_defaults(func=cmd_perpetual)
 
-    p = sub.add_parser("plot", parents=[common], help="draw a run's learning curves to a PNG")
-    p.add_argument("run", type=Path, metavar="RUN")
-    p.add_argument("--out", type=Path, help="PNG path (default: RUN/curves.png)")
+    p = sub.add_parser("plot", parents=[common], help="draw a run's learning curves to a PNG, or compare runs")
+    p.add_argument("runs", type=Path, nargs="+", metavar="RUN",
+                   help="a run directory; two or more: their evaluation and episode curves on shared panels")
+    p.add_argument("--out", type=Path, help="PNG path (default for one run: RUN/curves.png; a comparison needs it)")
+    p.add_argument("--label", action="append", help="a comparison's legend name of each run, in order")
+    p.add_argument("--metric", action="append", help="a comparison's column to draw (e.g. success_rate, "
+                   "no_fall; repeat it; default: the evaluation's headline columns and the episode statistics)")
+    p.add_argument("--x", choices=("timesteps", "minutes"), default="timesteps",
+                   help="a comparison's x axis (minutes: of training, for agents that pay differently per sample)")
     p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("recipes", help="list the recipes train finds by name, with what each trains")
@@ -269,7 +276,19 @@ def cmd_perpetual(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    print(plot_run(args.run, args.out))
+    if len(args.runs) == 1:
+        if args.label or args.metric or args.x != "timesteps":
+            raise RecipeError("--label, --metric and --x are for a comparison of two or more runs")
+        print(plot_run(args.runs[0], args.out))
+        return 0
+    if args.out is None:
+        raise RecipeError("a comparison of several runs needs --out PATH.png")
+    if args.label is not None and len(args.label) != len(args.runs):
+        raise RecipeError(f"{len(args.label)} --label(s) for {len(args.runs)} runs; give one a run, in order")
+    try:
+        print(plot_runs(args.runs, args.out, labels=args.label, x=args.x, metrics=args.metric))
+    except ValueError as e:
+        raise RecipeError(str(e)) from None
     return 0
 
 

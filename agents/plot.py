@@ -1,10 +1,15 @@
-"""Learning curves of a run: its logs/progress.csv drawn as a grid of panels in one PNG.
+"""Learning curves of a run: its logs/progress.csv drawn as a grid of panels in one PNG; and
+several runs on shared panels, one colour a run, to compare recipes on the same task.
 
-    from agents.plot import plot_run
+    from agents.plot import plot_run, plot_runs
     plot_run("runs/imitation_ppo-20250101-120000")       # -> runs/.../curves.png
+    plot_runs(["runs/speed_pulse", "runs/speed_ppo"], "speed.png", labels=["PULSE", "scratch"], x="minutes")
 
-Only the panels the log has data for are drawn, so the same function serves PPO and AMP runs,
-runs with or without evaluation, and a run that has only logged its first row.
+Only the panels the logs have data for are drawn, so the same functions serve PPO and AMP runs,
+runs with or without evaluation, and a run that has only logged its first row. A comparison
+draws the evaluation columns and the episode statistics against timesteps or against minutes
+of training (summed over the segments of a resumed run): agents that pay differently per sample
+(PULSE's task policies decode every action) are compared at equal wall-clock budgets so.
 """
 from __future__ import annotations
 
@@ -194,4 +199,112 @@ def _plot_series(ax, x, columns, series, style: str, colors: int) -> list:
     return lines
 
 
-__all__ = ["plot_run", "read_progress", "find_progress_csv", "panels_for", "EmptyLogError"]
+# ---------------------------------------------------------------------------------------- comparisons
+X_AXES = {"timesteps": (X_KEY, "timesteps"), "minutes": ("time/elapsed_s", "minutes of training")}
+# Columns a comparison draws by default: every evaluation column but the variants of the same
+# figure (over all clips, per-clip means), counts of trials (settings, not results) and final
+# distances, with the ranking score only where there is no success rate; and the episode
+# statistics. `metrics=` draws others.
+COMPARED = ("rollout/ep_len_mean", "rollout/ep_rew_mean")
+LEFT_OUT = ("eval/all_", "eval/clip_mean_", "eval/trials", "eval/final_distance")
+FRACTIONS = ("success_rate", "no_fall", "toppled", "targets_reached", "succ_")
+UNITS = {"mpjpe": "mm", "accel": "mm/frame²", "vel": "mm/frame", "speed_error": "m/s", "hand_distance": "m",
+         "path_error": "m", "final_distance": "m", "ep_len_mean": "steps"}
+
+
+def compared_columns(logs: list[dict[str, np.ndarray]]) -> list[str]:
+    """The columns a comparison of runs with these logs draws by default (comment above)."""
+    has = lambda k: any(k in c and np.isfinite(c[k]).any() for c in logs)  # noqa: E731
+    keys = sorted({k for c in logs for k in c if k.startswith("eval/") and not k.startswith(LEFT_OUT) and has(k)})
+    if "eval/success_rate" in keys:
+        keys.remove("eval/score") if "eval/score" in keys else None
+        keys.remove("eval/success_rate")
+        keys.insert(0, "eval/success_rate")
+    return keys + [k for k in COMPARED if has(k)]
+
+
+def training_minutes(elapsed: np.ndarray) -> np.ndarray:
+    """Minutes of training at each row from the logged `time/elapsed_s`, which starts again at 0
+    when a run is resumed: each segment continues from where the one before ended."""
+    out = np.array(elapsed, float)
+    offset, last = 0.0, 0.0
+    for i, e in enumerate(out):
+        if not np.isfinite(e):
+            continue
+        if e < last:  # a new segment
+            offset += last
+        last = e
+        out[i] = e + offset
+    return out / 60.0
+
+
+def plot_runs(runs, out: str | os.PathLike, labels=None, x: str = "timesteps", metrics=None,
+              dpi: int = 110) -> Path:
+    """Draw several runs' evaluation and episode curves on shared panels (module docstring) to
+    `out`; `labels`: one per run (default: the run directories' names); `x`: "timesteps" or
+    "minutes"; `metrics`: the columns to draw ("eval/no_fall" or just "no_fall"; default
+    `compared_columns`). Returns the path."""
+    runs = [Path(r) for r in runs]
+    if len(runs) < 2:
+        raise ValueError("a comparison needs at least two runs")
+    labels = [r.name for r in runs] if labels is None else list(labels)
+    if len(labels) != len(runs):
+        raise ValueError(f"{len(labels)} label(s) for {len(runs)} runs; give one label a run")
+    if x not in X_AXES:
+        raise ValueError(f"x must be one of {sorted(X_AXES)}, got {x!r}")
+    x_key, x_label = X_AXES[x]
+    logs = []
+    for run in runs:
+        csv_path = find_progress_csv(run)
+        columns = read_progress(csv_path)
+        if x_key not in columns:
+            raise EmptyLogError(f"{csv_path} has no {x_key} column")
+        xs = training_minutes(columns[x_key]) if x == "minutes" else columns[x_key]
+        logs.append((xs, columns))
+    if metrics:
+        known = sorted({k for _, c in logs for k in c})
+        keys = []
+        for m in metrics:
+            key = m if m in known else f"eval/{m}"
+            if key not in known:
+                raise ValueError(f"no run logged {m!r}; evaluation columns: "
+                                 f"{', '.join(k[5:] for k in known if k.startswith('eval/')) or 'none yet'}")
+            keys.append(key)
+    else:
+        keys = compared_columns([c for _, c in logs])
+    if not keys:
+        raise EmptyLogError(f"none of {', '.join(map(str, runs))} has logged an evaluation or an episode yet")
+    from matplotlib.figure import Figure
+
+    ncols = min(3, len(keys))
+    nrows = math.ceil(len(keys) / ncols)
+    fig = Figure(figsize=(5.2 * ncols, 3.4 * nrows))
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    for ax, key in zip(axes, keys):
+        for i, ((xs, columns), label) in enumerate(zip(logs, labels)):
+            if key in columns:
+                _plot_series(ax, xs, columns, [(key, label)], style="-", colors=i)
+        name = key.split("/", 1)[1]
+        ax.set_title(name)
+        ax.set_xlabel(x_label)
+        ax.grid(alpha=0.3)
+        if x == "timesteps":
+            ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))
+        if any(name.startswith(f) for f in FRACTIONS):
+            ax.set_ylim(-0.03, 1.03)
+            ax.set_ylabel("fraction")
+        else:
+            ax.set_ylabel(next((u for k, u in UNITS.items() if k in name), ""))
+        ax.legend(fontsize="small", loc="best")
+    for ax in axes[len(keys):]:
+        ax.set_visible(False)
+    fig.suptitle(" vs ".join(labels))
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.3 / fig.get_figheight()))  # room for the title
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    return out
+
+
+__all__ = ["plot_run", "plot_runs", "compared_columns", "training_minutes", "read_progress", "find_progress_csv", "panels_for",
+           "EmptyLogError"]

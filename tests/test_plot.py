@@ -1,7 +1,8 @@
 """Which learning-curve panels a run's log gets, and that a log renders to a PNG."""
 import numpy as np
+import pytest
 
-from agents.plot import panels_for, plot_run
+from agents.plot import compared_columns, panels_for, plot_run, plot_runs, training_minutes
 
 
 def _columns(**series):
@@ -46,3 +47,50 @@ def test_a_short_log_renders(tmp_path):
                    "2048,20,,,\n4096,25,1.0,80.5,0.99992\n")
     out = plot_run(tmp_path)
     assert out == tmp_path / "curves.png" and out.stat().st_size > 10_000
+
+
+def test_minutes_add_up_over_a_resumed_run():
+    # elapsed_s starts again at 0 when a run is resumed: the second segment continues the first.
+    elapsed = np.array([60.0, 120.0, np.nan, 180.0, 30.0, 90.0, 15.0])
+    np.testing.assert_allclose(training_minutes(elapsed)[[0, 1, 3, 4, 5, 6]], [1, 2, 3, 3.5, 4.5, 4.75])
+
+
+def _run(root, name, rows):
+    csv = root / name / "logs" / "progress.csv"
+    csv.parent.mkdir(parents=True)
+    csv.write_text("time/total_timesteps,time/elapsed_s,rollout/ep_len_mean,eval/no_fall,eval/trials_far\n"
+                   + "".join(f"{t},{e},{n},{f},64\n" for t, e, n, f in rows))
+    return root / name
+
+
+def test_a_comparison_of_runs_renders_and_refuses_mistakes(tmp_path):
+    a = _run(tmp_path, "pulse", [(2048, 30, 20, 0.1), (4096, 60, 40, 0.5)])
+    b = _run(tmp_path, "scratch", [(4096, 30, 10, 0.0), (8192, 60, 12, "")])
+    out = plot_runs([a, b], tmp_path / "cmp.png", labels=["PULSE", "scratch"], x="minutes")
+    assert out.stat().st_size > 10_000
+    with pytest.raises(ValueError, match="1 label"):
+        plot_runs([a, b], tmp_path / "x.png", labels=["PULSE"])
+    with pytest.raises(ValueError, match="at least two runs"):
+        plot_runs([a], tmp_path / "x.png")
+    with pytest.raises(ValueError, match="x must be one of"):
+        plot_runs([a, b], tmp_path / "x.png", x="hours")
+    from agents.cli import main
+
+    assert main(["plot", str(a), str(b), "--out", str(tmp_path / "c.png"), "--label", "p", "--label", "s"]) == 0
+    for argv in (["plot", str(a), str(b)], ["plot", str(a), "--x", "minutes"]):  # no --out; --x of one run
+        with pytest.raises(SystemExit) as stop:
+            main(argv)
+        assert stop.value.code == 2
+
+
+def test_a_comparison_draws_the_headline_columns_or_the_ones_asked_for(tmp_path):
+    cols = _columns(eval__success_rate=[0, 1, 1, 1], eval__mpjpe_g=[80, 50, 40, 30], eval__all_mpjpe_g=[1, 1, 1, 1],
+                    eval__clip_mean_accel=[1, 1, 1, 1], eval__score=[1, 1, 1, 1], rollout__ep_len_mean=[1, 2, 3, 4])
+    assert compared_columns([cols]) == ["eval/success_rate", "eval/mpjpe_g", "rollout/ep_len_mean"]
+    goal = _columns(eval__score=[0, 1, 1, 1], eval__no_fall=[0, 0, 1, 1], eval__trials_far=[64] * 4)
+    assert compared_columns([goal]) == ["eval/no_fall", "eval/score"]
+    a = _run(tmp_path, "a", [(2048, 30, 20, 0.1)])
+    b = _run(tmp_path, "b", [(2048, 30, 20, 0.2)])
+    assert plot_runs([a, b], tmp_path / "m.png", metrics=["no_fall"]).is_file()
+    with pytest.raises(ValueError, match="no run logged 'speed_error'; evaluation columns: no_fall, trials_far"):
+        plot_runs([a, b], tmp_path / "m.png", metrics=["speed_error"])

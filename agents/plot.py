@@ -137,13 +137,7 @@ def plot_run(run_dir_or_csv: str | os.PathLike, out: str | os.PathLike | None = 
     if not panels:
         raise EmptyLogError(f"{csv_path} has no column with data to plot")
 
-    # Figure without pyplot: no global backend switch, nothing left open, safe in threads.
-    from matplotlib.figure import Figure
-
-    ncols = min(3, len(panels))
-    nrows = math.ceil(len(panels) / ncols)
-    fig = Figure(figsize=(5.2 * ncols, 3.6 * nrows))
-    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    fig, axes = _grid(len(panels), 3.6)
     x = columns[X_KEY]
     lo, hi = np.nanmin(x), np.nanmax(x)
     for ax, panel in zip(axes, panels):
@@ -151,13 +145,25 @@ def plot_run(run_dir_or_csv: str | os.PathLike, out: str | os.PathLike | None = 
         # One time axis for all panels, also for sparse ones (evaluations) that would zoom in.
         if hi > lo:
             ax.set_xlim(lo - 0.02 * (hi - lo), hi + 0.02 * (hi - lo))
-    for ax in axes[len(panels):]:
-        ax.set_visible(False)
     fig.suptitle(f"{run_dir.name}: {int(hi):,} timesteps")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=dpi)
     return out
+
+
+def _grid(n: int, height: float):
+    """A figure of n panels, three to a row, and its n axes (the grid's spare cells hidden)."""
+    # Figure without pyplot: no global backend switch, nothing left open, safe in threads.
+    from matplotlib.figure import Figure
+
+    ncols = min(3, n)
+    nrows = math.ceil(n / ncols)
+    fig = Figure(figsize=(5.2 * ncols, height * nrows))
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    return fig, axes[:n]
 
 
 def _draw(ax, panel: Panel, columns: dict[str, np.ndarray]) -> None:
@@ -260,7 +266,8 @@ def plot_runs(runs, out: str | os.PathLike, labels=None, x: str = "timesteps", m
         if x_key not in columns:
             raise EmptyLogError(f"{csv_path} has no {x_key} column")
         xs = training_minutes(columns[x_key]) if x == "minutes" else columns[x_key]
-        logs.append((xs, columns))
+        order = np.argsort(xs, kind="stable")  # a resumed run may repeat steps (plot_run)
+        logs.append((xs[order], {k: v[order] for k, v in columns.items()}))
     if metrics:
         known = sorted({k for _, c in logs for k in c})
         keys = []
@@ -274,12 +281,7 @@ def plot_runs(runs, out: str | os.PathLike, labels=None, x: str = "timesteps", m
         keys = compared_columns([c for _, c in logs])
     if not keys:
         raise EmptyLogError(f"none of {', '.join(map(str, runs))} has logged an evaluation or an episode yet")
-    from matplotlib.figure import Figure
-
-    ncols = min(3, len(keys))
-    nrows = math.ceil(len(keys) / ncols)
-    fig = Figure(figsize=(5.2 * ncols, 3.4 * nrows))
-    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    fig, axes = _grid(len(keys), 3.4)
     for ax, key in zip(axes, keys):
         for i, ((xs, columns), label) in enumerate(zip(logs, labels)):
             if key in columns:
@@ -296,8 +298,6 @@ def plot_runs(runs, out: str | os.PathLike, labels=None, x: str = "timesteps", m
         else:
             ax.set_ylabel(next((u for k, u in UNITS.items() if k in name), ""))
         ax.legend(fontsize="small", loc="best")
-    for ax in axes[len(keys):]:
-        ax.set_visible(False)
     fig.suptitle(" vs ".join(labels))
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.3 / fig.get_figheight()))  # room for the title
     out = Path(out)

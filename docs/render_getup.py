@@ -22,20 +22,12 @@ import smpl_envs
 from smpl_envs.metrics import recovery_frame
 from smpl_envs.render import write_strip, write_video
 
+from render_tracker_grid import label  # a sibling script: docs/ is on the path when run
+
 KINDS = ("fallen", "far", "fallen+far")
 TILE = (320, 240)
 FPS = 30
 THRESHOLD = 0.5  # the protocol's success distance (m)
-
-
-def label(frame: np.ndarray, text: str, done: bool) -> np.ndarray:
-    from PIL import Image, ImageDraw
-
-    image = Image.fromarray(frame)
-    draw = ImageDraw.Draw(image)
-    draw.rectangle((0, 0, frame.shape[1], 18), fill=(0, 0, 0))
-    draw.text((4, 3), text, fill=(140, 255, 140) if done else (255, 255, 255))
-    return np.asarray(image)
 
 
 def episode(agent, kind: str, steps: int, seed: int, tmp: Path) -> tuple[list[np.ndarray], np.ndarray]:
@@ -98,7 +90,8 @@ def main(argv=None) -> None:
             back = int(recovery_frame(dist[None], THRESHOLD)[0])
             back = back if back >= 0 else None
             text = lambda i: kind + (f"  back after {back / FPS:.1f} s" if back is not None and i >= back else "")  # noqa: E731
-            frames = [label(f, text(i), back is not None and i >= back) for i, f in enumerate(frames)]
+            frames = [label(f, text(i), (140, 255, 140) if back is not None and i >= back else (255, 255, 255))
+                      for i, f in enumerate(frames)]
             tiles.append(frames + [frames[-1]] * (steps + 1 - len(frames)))
             print(f"{kind}: " + (f"back within {THRESHOLD} m after {back / FPS:.1f} s" if back is not None else
                                  f"not back in {args.seconds:g} s (distance at the end {dist[-1]:.2f} m)"))

@@ -36,13 +36,14 @@ def pick_clips(lib: MotionLib, seed: int) -> list[int]:
     return [int(rng.choice(by_family[f])) for f in corpus.FAMILIES if f in by_family]
 
 
-def label(frame: np.ndarray, text: str, ended: bool) -> np.ndarray:
+def label(frame: np.ndarray, text: str, color=(255, 255, 255)) -> np.ndarray:
+    """The frame with `text` on a black band across its top."""
     from PIL import Image, ImageDraw
 
     image = Image.fromarray(frame)
     draw = ImageDraw.Draw(image)
     draw.rectangle((0, 0, frame.shape[1], 18), fill=(0, 0, 0))
-    draw.text((4, 3), text, fill=(255, 120, 120) if ended else (255, 255, 255))
+    draw.text((4, 3), text, fill=color)
     return np.asarray(image)
 
 
@@ -81,7 +82,7 @@ def main(argv=None) -> None:
             frames, ended = tile_frames(agent, lib, clip, steps, Path(tmp))
             name = lib.names[clip]
             text = name + (f"  fell at frame {ended}" if ended is not None else "")
-            frames = [label(f, text, ended is not None) for f in frames]
+            frames = [label(f, text, (255, 120, 120) if ended is not None else (255, 255, 255)) for f in frames]
             hold = (frames[-1] * (0.5 if ended is not None else 1.0)).astype(np.uint8)
             tiles.append(frames + [hold] * (steps + 1 - len(frames)))
             print(f"{name}: {'fell at frame ' + str(ended) if ended is not None else 'tracked'}")

@@ -1,5 +1,5 @@
 """What a recovery run started from a tracker needs: the action base while recovering
-(reference, pose, target), the get-up curriculum (the start mix over training, set through the
+(reference, pose, target, pull), the get-up curriculum (the start mix over training, set through the
 env's documented hook), and the recipe that puts them together."""
 from __future__ import annotations
 
@@ -61,6 +61,31 @@ def test_pose_base_follows_the_body_and_reference_base_is_as_before():
         env.step(np.zeros((4, 69)))
         np.testing.assert_allclose(_ctrl(env), np.clip(ref, -u.action_scale, u.action_scale), atol=1e-6)
         env.close()
+
+
+def test_pull_base_moves_the_pose_toward_the_reference_by_at_most_a_residual_range():
+    env = _env(starts={"fallen": 1.0}, recovery_action_base="pull")
+    env.reset(seed=0)
+    u = env.unwrapped
+    span = u.action_scale * u.residual_scale
+    for a in (np.zeros((4, 69)), np.full((4, 69), -0.3)):
+        pose = u.sim.qpos[:, u.humanoid.dof_qpos].copy()
+        ref = u.motion_lib.dof_pos[u.ref.next_frame()].copy()
+        env.step(a)
+        expected = np.clip(pose + np.clip(ref - pose, -span, span) + a * span, -u.action_scale, u.action_scale)
+        np.testing.assert_allclose(_ctrl(env), expected, atol=1e-9)
+        # A fallen body is far from the standing pose: the pull is capped on many hinges.
+        assert (np.abs(ref - pose) > span).mean() > 0.05
+    env.close()
+    # A body at the reference pose but far from it, standing: the pull base is the reference itself.
+    env = _env(starts={"far": 1.0}, recovery_action_base="pull")
+    env.reset(seed=0)
+    u = env.unwrapped
+    assert u.recovery.showing.all()
+    ref = u.motion_lib.dof_pos[u.ref.next_frame()].copy()
+    env.step(np.zeros((4, 69)))
+    np.testing.assert_allclose(_ctrl(env), np.clip(ref, -u.action_scale, u.action_scale), atol=1e-6)
+    env.close()
 
 
 def test_action_base_is_a_policy_setting_and_bad_values_are_named():
@@ -148,7 +173,7 @@ def test_a_recipe_with_a_curriculum_trains_and_logs_the_mix(tmp_path):
 
 def test_the_recovery_recipe_starts_from_a_tracker():
     r = load_recipe("recovery_tracker_ppo")
-    assert r["agent"]["init"] == "tracker" and r["env"]["kwargs"]["recovery_action_base"] == "target"
+    assert r["agent"]["init"] == "tracker" and r["env"]["kwargs"]["recovery_action_base"] == "pull"
     assert r["env"]["kwargs"]["residual_scale"] == load_recipe("tracker_ppo")["env"]["kwargs"]["residual_scale"]
     assert r["agent"]["policy"] == load_recipe("tracker_ppo")["agent"]["policy"]  # the same network
     assert start_mix(r["train"]["curriculum"], 0)["fallen"] == 1.0

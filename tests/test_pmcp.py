@@ -215,7 +215,7 @@ def test_the_pipeline_end_to_end_stopped_and_resumed(tmp_path, monkeypatch, caps
     # The composed policy: every primitive inside one file, the recovery primitive's settings in its env.
     composed = agents.load(run / "pmcp.pt")
     assert type(composed.policy) is agents.Composer and composed.policy.num_primitives == 3
-    assert composed.env_kwargs["recovery"]["recovery_action_base"] == "target"
+    assert composed.env_kwargs["recovery"]["recovery_action_base"] == "pull"
     assert all(p.frozen for p in composed.policy.primitives)
     for name in ("summary.txt", "summary.json", "perpetual.json", "stages/composer/recovery_eval.json",
                  "stages/recovery/set_eval.json"):

@@ -204,7 +204,8 @@ class ImitationVecEnv(HumanoidVecEnv):
             # While the goal shows its recovery form, a residual may be taken around another base
             # than the standing reference (`recovery_action_base`).
             targets = self.recovery.pd_targets(targets, actions, self.action_scale, self.action_mode,
-                                               self.residual_scale, self.sim.qpos[:, self.humanoid.dof_qpos])
+                                               self.residual_scale, self.sim.qpos[:, self.humanoid.dof_qpos],
+                                               self.ref.next_dof_pos())
         return targets
 
     def _advance(self, active):

@@ -54,7 +54,15 @@ the base decides what the zero action does to a body on the floor.
   tracker's small residuals (a quarter range per step) still add up to a get-up. Near the
   reference (the goal's ordinary form) every base is the reference, so a tracker's weights mean
   what they meant, and the step the goal switches back the target returns to reference +
-  residual. This is the base `tasks/recovery_tracker_ppo.yaml` starts a tracker's weights on.
+  residual. `tasks/recovery_tracker_ppo.yaml` measured it: a tracker's residuals on states it
+  never saw are not zero-mean, and the targets integrate them into the joint limits within a
+  second (docs/results/learning.md#recovery-started-from-the-tracker).
+* "pull": the simulated hinge angles moved toward the reference frame's by at most the residual
+  range (residual_scale x the hinge's range) per hinge. Near the reference pose this is the
+  reference itself, so a standing body far from its goal stands as under "reference"; a body on
+  the floor gets a bounded pull toward the standing pose, and the residual, taken around the
+  pose the body is in, reaches any pose over a few steps without integrating anything (the
+  base is tied to the body, not to the last target).
 
 Episode rules: no termination while recovering (d > switch_distance) nor during the grace that
 follows a recovering step, a fallen or far start, or a continued termination (`grace_steps`);
@@ -269,7 +277,7 @@ class RecoveryVecEnv(ImitationVecEnv):
     (0.5 m), clamp_distance (5 m), point_scale (9), point_clip (1/3 m), recovery_imitation_weight
     (0.5), grace_steps (90), continue_prob (0.5), far_distance ((2, 5) m), hold_end (True: the
     reference holds its last frame, no truncation at the clip's end), fallen_cache_size (128),
-    fallen_seed (0), recovery_action_base ("reference", "pose" or "target": module docstring);
+    fallen_seed (0), recovery_action_base ("reference", "pose", "target" or "pull": module docstring);
     and Imitation's (motions: "stand", reward_weights, reward_scales,
     energy_weight, termination_distance, action_mode, residual_scale, core kwargs).
     """

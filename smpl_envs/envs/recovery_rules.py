@@ -26,9 +26,10 @@ RECOVERY_IMITATION_WEIGHT = 0.5
 GRACE_STEPS = 90
 FAR_DISTANCE = (2.0, 5.0)
 # What a residual action is added to while the goal shows its recovery form (module docstring of
-# `smpl_envs.envs.recovery`): the reference (as while tracking), the simulated pose, or the PD
-# target of the step before.
-ACTION_BASES = ("reference", "pose", "target")
+# `smpl_envs.envs.recovery`): the reference (as while tracking), the simulated pose, the PD
+# target of the step before, or the simulated pose pulled toward the reference by at most a
+# residual range.
+ACTION_BASES = ("reference", "pose", "target", "pull")
 FALLEN, FAR = np.array([False, True, False, True]), np.array([False, False, True, True])
 
 
@@ -192,14 +193,20 @@ class RecoveryController:
         self.showing = far
         return recovery_reference(body, ref_next, far, self.clamp_distance) if far.any() else ref_next
 
-    def pd_targets(self, targets, actions, action_scale, action_mode: str, residual_scale: float, pose):
+    def pd_targets(self, targets, actions, action_scale, action_mode: str, residual_scale: float, pose, ref_pose):
         """The PD targets of a step: Imitation's `targets`, except for residual actions of worlds
         whose last observation showed the recovery goal, which are added to the base
-        `recovery_action_base` names: the simulated hinge angles `pose` ("pose"), or the PD targets
-        of the world's last step ("target"). Records every world's targets for the next step."""
+        `recovery_action_base` names: the simulated hinge angles `pose` ("pose"), the PD targets
+        of the world's last step ("target"), or `pose` moved toward the reference frame's hinge
+        angles `ref_pose` by at most the residual range per hinge ("pull"). Records every world's
+        targets for the next step."""
         if self.action_base != "reference" and action_mode == "residual" and bool(self.showing.any()):
-            base = pose if self.action_base == "pose" else self.last_target
-            moved = (base + actions * (residual_scale * action_scale)).clip(-action_scale, action_scale)
+            span = residual_scale * action_scale
+            if self.action_base == "pull":
+                base = pose + (ref_pose - pose).clip(-span, span)
+            else:
+                base = pose if self.action_base == "pose" else self.last_target
+            moved = (base + actions * span).clip(-action_scale, action_scale)
             targets = self.backend.xp.where(self.showing[:, None], moved, targets)
         self.last_target[:] = targets
         return targets

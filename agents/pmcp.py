@@ -404,18 +404,12 @@ class Pipeline:
         if not self.spec["primitive"]["lateral"]:
             recipe["agent"]["init"] = previous["checkpoint"]
             return apply_overrides(recipe)
-        # A column beside the frozen previous primitive, shaped after it (agents.progressive).
-        import agents
-        from smpl_envs import policy_settings
-
-        agent = agents.load(previous["checkpoint"], device="cpu", verbose=0, tensorboard=False)
-        theirs = policy_settings.trained_settings(agent.env_id, agent.env_kwargs)
-        mine = policy_settings.trained_settings(recipe["env"]["id"], kwargs)
-        for setting in ACTION_SETTINGS:  # warm_start checks these for a copy; a column needs them too
-            if setting in theirs and theirs[setting] != mine.get(setting):
-                raise RecipeError(f"{previous['name']} was trained with {setting}={theirs[setting]!r}, "
-                                  f"primitive.recipe has {setting}={mine.get(setting)!r}; a column beside it would "
-                                  "read its features under other actions")
+        # A column beside the frozen previous primitive, shaped after it (agents.progressive);
+        # warm_start checks the action settings for a copy, a column needs them too.
+        _check_action_settings(previous["checkpoint"], recipe["env"]["id"], kwargs,
+                               lambda k, theirs, mine: f"{previous['name']} was trained with {k}={theirs!r}, "
+                               f"primitive.recipe has {k}={mine!r}; a column beside it would read its features "
+                               "under other actions")
         recipe["agent"]["init"] = None
         recipe["agent"]["policy"] = {"class": "ProgressiveActorCritic",
                                      "kwargs": {"previous": {"checkpoint": previous["checkpoint"]}}}
@@ -432,7 +426,6 @@ class Pipeline:
 
     def _composer_recipe(self, primitives: list[str]) -> dict:
         import agents
-        from smpl_envs import policy_settings
 
         recipe = self._stage_recipe("composer")
         if recipe["env"]["id"] != IMITATION:
@@ -446,15 +439,11 @@ class Pipeline:
         recovery = kwargs.get("recovery")
         recovery = dict(recovery) if isinstance(recovery, dict) else {}
         paths = [self.state["stages"][name]["checkpoint"] for name in primitives]
-        mine = policy_settings.trained_settings(IMITATION, kwargs)
         for name, path in zip(primitives, paths):
-            agent = agents.load(path, device="cpu", verbose=0, tensorboard=False)
-            theirs = policy_settings.trained_settings(agent.env_id, agent.env_kwargs)
-            for setting in ACTION_SETTINGS:
-                if setting in theirs and theirs[setting] != mine[setting]:
-                    raise RecipeError(f"primitive {name} ({path}) was trained with {setting}={theirs[setting]!r}, the "
-                                      f"composer's env has {setting}={mine[setting]!r}; its actions would mean "
-                                      f"something else there (set composer env.kwargs.{setting})")
+            agent, theirs = _check_action_settings(
+                path, IMITATION, kwargs, lambda k, theirs, mine, name=name, path=path:
+                f"primitive {name} ({path}) was trained with {k}={theirs!r}, the composer's env has {k}={mine!r}; "
+                f"its actions would mean something else there (set composer env.kwargs.{k})")
             if name == "recovery":  # the composer's env recovers as the recovery primitive learnt to
                 recovery.update(settings_for(agent, RECOVERY) if agent.env_id != RECOVERY else
                                 {k: theirs[k] for k in RECOVERY_SETTINGS if k in theirs})
@@ -531,6 +520,22 @@ class Pipeline:
         (self.run_dir / "summary.txt").write_text(text + "\n")
         (self.run_dir / "summary.json").write_text(json.dumps(data, indent=2) + "\n")
         return text
+
+
+def _check_action_settings(checkpoint: str, env_id: str, kwargs: dict, message):
+    """(agent, its trained settings) of `checkpoint`, after checking that env `env_id` with
+    `kwargs` gives its actions the meaning they had (ACTION_SETTINGS); a RecipeError with
+    `message(setting, trained value, value here)` otherwise."""
+    import agents
+    from smpl_envs import policy_settings
+
+    agent = agents.load(checkpoint, device="cpu", verbose=0, tensorboard=False)
+    theirs = policy_settings.trained_settings(agent.env_id, agent.env_kwargs)
+    mine = policy_settings.trained_settings(env_id, kwargs)
+    for setting in ACTION_SETTINGS:
+        if setting in theirs and theirs[setting] != mine.get(setting):
+            raise RecipeError(message(setting, theirs[setting], mine.get(setting)))
+    return agent, theirs
 
 
 def _rows(path: Path) -> list[dict]:

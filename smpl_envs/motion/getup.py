@@ -1,0 +1,447 @@
+"""Getting up from the floor: from lying on the front or the back to standing, the way most people
+do it (roll onto the front, push back onto hands and knees, bring one foot forward between the
+hands, push up into a half-kneel, rise over the front foot and step the other foot beside it).
+
+The corpus has no other motion that starts on the floor, so without this family a tracker, and
+everything distilled from it, has never seen a body rise (docs/results/learning.md, the recovery
+runs). The clip is directed in phases, each a minimum-jerk blend between key postures:
+
+* on the floor (lying, rolling, pushing back, on hands and knees) the legs and spine are hinge
+  angles; the pelvis height puts the lowest point of the body (hands aside) on the floor, and its
+  horizontal position keeps the body's contacts with the floor where they were (a body pushes
+  itself over its contacts, it does not slide on them);
+* hands on the floor are placed by inverse kinematics on fixed floor points, blended with the
+  free arm posture as they are put down and lifted;
+* from the moment the front foot is put down its leg is solved by the closed-form IK of
+  `procedural`, foot flat and still; while rising the other leg is too, and the pelvis moves so
+  that the centre of mass stays over the support.
+
+Status (2026-12-03): work in progress, not yet a corpus family. The clip reads as a get-up in a
+frame strip from both starts, but it does not pass `check_motion` yet: the front hip goes a few
+degrees past its anatomical range while the foot comes forward and the body rises (and one hinge
+decomposition flips near gimbal lock there), and while the hands are put down the body is not
+yet resting on its contacts. Those have to pass before `corpus.FAMILIES` may hold it.
+
+`getup(...)` is a pure, deterministic function of its parameters; `RANGES["getup"]` holds them.
+The clip ends standing still in the suite's standing pose (feet 0.1 m either side), so it chains
+with the other families. Frames, axes and signs are procedural's: x forward, y left, z up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..humanoid.kinematics import forward_kinematics, lowest_point
+from ..rotations import quat_apply, quat_from_euler_xyz, quat_inv, quat_mul, yaw_quat
+from .motion import FPS, RawMotion
+from .plausibility import centre_of_mass, support_points_world
+from .procedural import (
+    B, BALL_HEIGHT, DEG, FOOT_CENTRE, OFFSETS, SIDES, SKELETON, _arm, _axis_quat, _keys,
+    _max_pelvis_height, _minjerk, _normalize, _rot, _solve_arm, _solve_leg, _Spec, _standing_legs,
+)
+
+SOURCE = "smpl_envs.motion.getup"
+
+RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    "getup": {
+        # speed factor of the whole movement (durations / tempo)
+        "tempo": (0.7, 1.3),
+        # lateral half-distance of the hands on the floor, and how far ahead of the shoulders
+        "hand_width": (0.14, 0.24),
+        "hand_ahead": (-0.04, 0.12),
+        # lateral half-distance of the knees on hands and knees
+        "knee_width": (0.06, 0.14),
+        # seconds spent lying before moving, and on hands and knees
+        "lie": (0.3, 1.5),
+        "kneel": (0.1, 0.8),
+    },
+}
+STARTS = ("front", "back")
+
+_FLOOR_BODIES = np.array([i for i in range(24) if i not in {B[f"{s}_{p}"] for s in SIDES
+                                                            for p in ("Shoulder", "Elbow", "Wrist", "Hand")}])
+_HAND_REST = 0.003  # m: how far above the floor the hand's lowest point is aimed (inside the contact band)
+_PHASES = ("lie", "roll", "hands", "push", "kneel", "step", "rise", "up", "close", "stand", "end")
+_NEXT = dict(zip(_PHASES[:-1], _PHASES[1:]))
+# m: bodies on the floor rest this deep in it, as soft tissue and MuJoCo's soft contacts do: a
+# capsule body otherwise rests on its one lowest point, and a few mm decide which limb that is.
+_SINK = 0.004
+_STAND_WIDTH = 0.1  # m: the standing pose's toe joints either side of the centre line
+
+
+def _check(name: str, value, bounds=None) -> float:
+    lo, hi = RANGES["getup"][name] if bounds is None else bounds
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"getup: {name} must be a number, got {value!r}") from None
+    if not np.isfinite(x) or not lo - 1e-9 <= x <= hi + 1e-9:
+        raise ValueError(f"getup: {name} = {value!r} is outside [{lo:.4g}, {hi:.4g}]")
+    return x
+
+
+def getup(start: str = "back", side: str = "L", roll: str = "L", tempo: float = 1.0,
+          hand_width: float = 0.18, hand_ahead: float = 0.04, knee_width: float = 0.1,
+          lie: float = 0.8, kneel: float = 0.3, name: str = "getup") -> RawMotion:
+    """Lying on the `start` ("front": face down, "back": face up), getting up to standing.
+
+    side: the leg ("L" / "R") that steps forward between the hands. roll: the side rolled over
+    onto the front from the back (ignored for "front"). The other parameters: `RANGES["getup"]`.
+    About 7.5 s from the front and 9 s from the back at tempo 1.
+    """
+    if start not in STARTS:
+        raise ValueError(f"getup: start = {start!r} must be one of {STARTS}")
+    for key, value in (("side", side), ("roll", roll)):
+        if value not in SIDES:
+            raise ValueError(f"getup: {key} = {value!r} must be 'L' or 'R'")
+    tempo = _check("tempo", tempo)
+    p = {k: _check(k, v) for k, v in (("hand_width", hand_width), ("hand_ahead", hand_ahead),
+                                       ("knee_width", knee_width), ("lie", lie), ("kneel", kneel))}
+    return _Getup(start, side, roll, tempo, **p).clip(name)
+
+
+class _Getup:
+    """The phases, their key postures and the solve. Times in seconds from the clip's start."""
+
+    def __init__(self, start, side, roll, tempo, hand_width, hand_ahead, knee_width, lie, kneel):
+        self.side, self.back = side, ("R" if side == "L" else "L")
+        self.hand_width, self.hand_ahead, self.knee_width = hand_width, hand_ahead, knee_width
+        durations = [("lie", lie), ("roll", 1.4 if start == "back" else 0.0), ("hands", 0.7),
+                     ("push", 1.3), ("kneel", kneel), ("step", 1.0), ("rise", 1.2), ("up", 1.1),
+                     ("close", 0.8), ("stand", 0.8)]
+        self.keys, t = {}, 0.0
+        for phase, d in durations:
+            self.keys[phase] = t
+            t += d / tempo if phase not in ("lie", "kneel") else d
+        self.keys["end"] = t
+        self.t = np.arange(int(round(t * FPS)) + 1) / FPS
+        self.start, self.roll_sign = start, SIDES[roll]
+
+    def curve(self, keys: list[tuple[str, float]]) -> np.ndarray:
+        """Minimum-jerk curve through (phase, value) keys, each reached at that phase's start;
+        held before the first and after the last."""
+        times = np.array([self.keys[p] if isinstance(p, str) else self.keys[p[0]] + p[1] * (
+            self.keys[_NEXT[p[0]]] - self.keys[p[0]]) for p, _ in keys])
+        values = np.array([v for _, v in keys], float)
+        keep = np.append(np.diff(times) > 0, True)  # a phase of no length: its end's value wins
+        return _keys(self.t, times[keep], values[keep]) if keep.sum() > 1 else np.full(len(self.t), values[-1])
+
+    # ----------------------------------------------------------------- key postures
+
+    def postures(self):
+        """Per-frame pelvis orientation and hinge angles of the floor phases."""
+        t, c = self.t, self.curve
+        n = len(t)
+        pitch = c([("lie", 90 * DEG), ("push", 90 * DEG), ("step", 85 * DEG), ("rise", 62 * DEG),
+                   ("up", 15 * DEG), ("close", 6 * DEG), ("stand", 0.0)])
+        # From the back the body rolls about its long axis onto the front: psi 180 -> 0 deg.
+        psi = (c([("lie", np.pi), ("roll", np.pi), ("hands", 0.0)]) * self.roll_sign
+               if self.start == "back" else np.zeros(n))
+        angles = np.zeros((n, 24, 3))
+        for s, sign in SIDES.items():
+            hip, knee, ankle = (B[f"{s}_{j}"] for j in ("Hip", "Knee", "Ankle"))
+            # Hip flexion, knee flexion: straight lying, then the thighs swing under the body.
+            # Lying, a little flexion (front) or extension (back) brings the thighs onto the floor.
+            lying = 6 * DEG if self.start == "front" else -6 * DEG
+            flex = c([("lie", lying), ("roll", lying), ("hands", 6 * DEG), ("push", 6 * DEG), ("kneel", 92 * DEG)])
+            if s == self.back:  # the kneeling thigh stays upright as the body rises over it
+                flex = np.where(t >= self.keys["kneel"], pitch + 2 * DEG, flex)
+            angles[:, hip, 1] = -flex
+            angles[:, knee, 1] = c([("lie", 4 * DEG), ("push", 8 * DEG), ("kneel", 118 * DEG)])
+            # Knees apart on hands and knees; a log roll keeps the legs together.
+            spread = np.arcsin(np.clip(self.knee_width / 0.4, 0, 0.5)) - 3 * DEG
+            angles[:, hip, 0] = sign * c([("lie", 3 * DEG), ("push", 3 * DEG), ("kneel", spread)])
+            # Toes tucked under on the floor: the foot at a right angle to the shin.
+            angles[:, ankle, 1] = c([("lie", 25 * DEG), ("hands", 25 * DEG), ("kneel", 0.0)])
+            angles[:, B[f"{s}_Toe"], 1] = self.toe_curve(s)
+        # The spine: a slight arch lying, a flat back on hands and knees, upright when standing.
+        lean = c([("lie", -4 * DEG), ("push", -4 * DEG), ("kneel", 6 * DEG), ("rise", 8 * DEG),
+                  ("up", 10 * DEG), ("close", 2 * DEG)])
+        for body, share in (("Torso", 0.4), ("Spine", 0.35), ("Chest", 0.25)):
+            angles[:, B[body], 1] = share * lean
+        # The head looks at the floor ahead on the floor and forward when up.
+        look = c([("lie", -10 * DEG), ("push", -25 * DEG), ("step", -25 * DEG), ("up", 0.0)])
+        angles[:, B["Neck"], 1] = 0.6 * look
+        angles[:, B["Head"], 1] = 0.4 * look
+        quat = quat_mul(_rot(np.zeros(n), pitch), _axis_quat(2, psi))
+        return quat, angles, pitch
+
+    def hand_weight(self) -> np.ndarray:
+        """0: the arm free, 1: the hand on its floor point."""
+        return self.curve([("roll", 0.0), ("hands", 0.0), ("push", 1.0), ("rise", 1.0), (("rise", 0.45), 0.0)])
+
+    def free_arms(self):
+        """Arm posture when not on the floor: along the body lying, forward while rising."""
+        c = self.curve
+        flex = c([("lie", -10 * DEG), ("rise", -10 * DEG), ("up", 35 * DEG), ("close", 8 * DEG), ("stand", 0.0)])
+        abduct = c([("lie", 8 * DEG), ("up", 12 * DEG), ("close", 10 * DEG)])
+        elbow = c([("lie", 10 * DEG), ("rise", 10 * DEG), ("up", 30 * DEG), ("close", 15 * DEG)])
+        return {s: _arm(self.t, s, flex, abduct, elbow) for s in SIDES}
+
+    # ----------------------------------------------------------------- the solve
+
+    def clip(self, name: str) -> RawMotion:
+        t, n = self.t, len(self.t)
+        pelvis_quat, angles, pitch = self.postures()
+        local = quat_from_euler_xyz(angles)
+        local[:, 0] = pelvis_quat
+        root = np.zeros((n, 3))
+        self._level(local)
+        free = self.free_arms()
+        self._solve_arms(root, local, free, None, None)
+
+        # Floor phases: height from the lowest point (hands aside), position pinned on contacts.
+        root[:, 2] = self._floor_height(root, local) - _SINK
+        root[:, :2] = self._pinned(root, local)
+
+        # The front foot: from the step on, planted where the step puts it.
+        i_step, i_rise = self._index("step"), self._index("rise")
+        legs = self._leg_targets(root, local, i_step, i_rise)
+        spec = _Spec(t, root, pelvis_quat, legs, free)
+        self._solve_leg_from(spec, self.side, local, i_step)
+        # Back leg hinge angles hold the kneel until it rises; then IK too.
+        i_up = self._index("rise")
+        # The pelvis from the step: height keeps the back knee (floor bodies) on the floor until
+        # the rise, then goes up; horizontally, the centre of mass moves over the front foot.
+        self._rise(spec, local, i_step, i_up)
+        root = spec.pelvis_pos
+
+        # Hands on fixed floor points while they bear weight.
+        w = self.hand_weight()
+        self._solve_arms(root, local, free, self._hand_targets(root, local), w)
+        # Whatever the blend left under the floor is lifted out (a few mm at most).
+        body_pos, body_quat = forward_kinematics(root, local, OFFSETS)
+        low = lowest_point(body_pos, body_quat, SKELETON)
+        root[:, 2] -= np.minimum(low + _SINK, 0.0)
+        return RawMotion(name, FPS, root.copy(), local, source=SOURCE)
+
+    def _level(self, local) -> None:
+        """Pitch the lying body about the floor's lateral axis so that its upper body and its
+        legs reach equally low: it then rests on both, with the centre of mass between them,
+        instead of balancing on its pelvis. Blended out as the hands take the weight."""
+        upper = [B[b] for b in ("Torso", "Spine", "Chest", "Neck", "Head", "L_Thorax", "R_Thorax")]
+        lower = [0] + [B[f"{s}_{j}"] for s in SIDES for j in ("Hip", "Knee", "Ankle", "Toe")]
+        grid = np.linspace(-12, 12, 25) * DEG
+        gaps = []
+        for d in grid:
+            trial = local.copy()
+            trial[:, 0] = quat_mul(_axis_quat(1, np.full(len(local), d)), local[:, 0])
+            pos, q = forward_kinematics(np.zeros((len(local), 3)), trial, OFFSETS)
+            pts, reach = support_points_world(pos, q, SKELETON)
+            z = (pts[..., 2] - reach).min(-1)
+            gaps.append(z[:, upper].min(1) - z[:, lower].min(1))
+        gaps = np.array(gaps)  # (grid, T): crosses zero where both rest on the floor
+        best = grid[np.argmin(np.abs(gaps), axis=0)]
+        weight = self.curve([("lie", 1.0), ("hands", 1.0), ("push", 0.0)])
+        delta = _smooth(best, 5) * weight
+        local[:, 0] = quat_mul(_axis_quat(1, delta), local[:, 0])
+
+    def _index(self, phase: str) -> int:
+        return int(np.searchsorted(self.t, self.keys[phase] - 1e-9))
+
+    def _floor_height(self, root, local, exclude=()) -> np.ndarray:
+        """Pelvis height per frame that puts the lowest floor body (not in `exclude`) on the floor."""
+        body_pos, body_quat = forward_kinematics(root * [1, 1, 0], local, OFFSETS)
+        pts, reach = support_points_world(body_pos, body_quat, SKELETON)
+        bodies = np.array([b for b in _FLOOR_BODIES if b not in exclude])
+        z = pts[:, bodies][..., 2] - reach[bodies]
+        return -z.reshape(len(z), -1).min(1)
+
+    def _pinned(self, root, local, exclude=()) -> np.ndarray:
+        """Pelvis xy per frame such that the floor contacts common to consecutive frames do not
+        move horizontally (their mean displacement is cancelled)."""
+        body_pos, body_quat = forward_kinematics(root * [0, 0, 1], local, OFFSETS)
+        pts, reach = support_points_world(body_pos, body_quat, SKELETON)
+        bodies = np.array([b for b in _FLOOR_BODIES if b not in exclude])
+        pts, reach = pts[:, bodies], reach[bodies]
+        touch = pts[..., 2] - reach < 0.015
+        xy = np.zeros((len(root), 2))
+        for i in range(1, len(root)):  # a running sum along time
+            both = touch[i] & touch[i - 1]
+            if both.any():
+                delta = (pts[i, ..., :2] - pts[i - 1, ..., :2])[both].mean(0)
+            else:
+                delta = np.zeros(2)
+            xy[i] = xy[i - 1] - delta
+        return xy
+
+    def _hand_targets(self, root, local):
+        """Floor points of the hands: beside and a little ahead of where the shoulders are on
+        hands and knees, fixed from the moment the hands are down until they lift."""
+        body_pos, _ = forward_kinematics(root, local, OFFSETS)
+        i = self._index("step")
+        chest = body_pos[i, B["Chest"], :2]
+        forward = _normalize(body_pos[i, B["Head"], :2] - body_pos[i, B["Pelvis"], :2])
+        left = np.array([-forward[1], forward[0]])
+        targets = {}
+        for s, sign in SIDES.items():
+            along = (body_pos[i, B[f"{s}_Shoulder"], :2] - chest) @ forward
+            xy = chest + (along + self.hand_ahead) * forward + sign * self.hand_width * left
+            targets[s] = np.concatenate([xy, [0.0]])
+        return targets
+
+    def _solve_arms(self, root, local, free, targets, w):
+        """Shoulder and elbow rotations: the free posture; where `w` > 0 the hand is aimed at the
+        point blending where the free posture puts it (w = 0) and its floor target (w = 1), so a
+        hand is put down and lifted along a path, never through the floor."""
+        for s in SIDES:
+            upper, elbow, twist = (np.array(a, float) for a in free[s])
+            _, body_quat = forward_kinematics(root, local, OFFSETS)
+            _solve_arm(s, body_quat[:, B["Chest"]], body_quat[:, B[f"{s}_Thorax"]], upper, elbow, twist, local)
+            if targets is None:
+                continue
+            free_low = self._hand_low(root, local, s)
+            aim = (1 - w[:, None]) * free_low + w[:, None] * targets[s]
+            aim[:, 2] = np.maximum(aim[:, 2], 0.0)
+            on = w > 0
+            upper_f, elbow_f = self._reach(root[on], local[on], s, aim[on], upper[on], elbow[on], twist[on])
+            upper, elbow = upper.copy(), elbow.copy()
+            upper[on], elbow[on] = upper_f, elbow_f
+            _solve_arm(s, body_quat[:, B["Chest"]], body_quat[:, B[f"{s}_Thorax"]], upper, elbow, twist, local)
+
+    @staticmethod
+    def _hand_low(root, local, s):
+        """World point (T, 3) of the lowest point of a hand's geometry."""
+        pos, q = forward_kinematics(root, local, OFFSETS)
+        pts, reach = support_points_world(pos, q, SKELETON)
+        hand = B[f"{s}_Hand"]
+        z = pts[:, hand, :, 2] - reach[hand]
+        k = np.argmin(z, axis=1)
+        low = pts[np.arange(len(k)), hand, k].copy()
+        low[:, 2] -= reach[hand][k]
+        return low
+
+    def _reach(self, root, local, s, aim, upper, elbow, twist):
+        """Upper-arm direction (chest frame) and elbow flexion that put the hand's lowest point
+        on `aim` (T, 3), _HAND_REST above it where it is on the floor."""
+        work = local.copy()
+        upper, elbow = upper.copy(), elbow.copy()
+        l1 = np.linalg.norm(OFFSETS[B[f"{s}_Elbow"]])
+        l2 = np.linalg.norm(OFFSETS[B[f"{s}_Wrist"]])
+        goal_low = aim + [0, 0, _HAND_REST]
+        for _ in range(20):
+            _, q = forward_kinematics(root, work, OFFSETS)
+            chest_q = q[:, B["Chest"]]
+            _solve_arm(s, chest_q, q[:, B[f"{s}_Thorax"]], upper, elbow, twist, work)
+            pos, _ = forward_kinematics(root, work, OFFSETS)
+            wrist_goal = pos[:, B[f"{s}_Wrist"]] + (goal_low - self._hand_low(root, work, s))
+            shoulder = pos[:, B[f"{s}_Shoulder"]]
+            to_goal = wrist_goal - shoulder
+            d = np.clip(np.linalg.norm(to_goal, axis=-1), abs(l1 - l2) + 1e-3, l1 + l2 - 1e-3)
+            elbow = np.pi - np.arccos(np.clip((l1 ** 2 + l2 ** 2 - d ** 2) / (2 * l1 * l2), -1, 1))
+            to_wrist = pos[:, B[f"{s}_Wrist"]] - shoulder
+            # turn the upper arm by the rotation taking the current wrist direction to the goal's
+            rot = _rotation_between(_normalize(to_wrist), _normalize(to_goal))
+            upper = quat_apply(quat_inv(chest_q), quat_apply(rot, quat_apply(chest_q, upper)))
+        return upper, elbow
+
+    def _leg_targets(self, root, local, i_step, i_rise):
+        """IK targets of both legs from the step on (before it the legs are hinge angles)."""
+        t, n = self.t, len(self.t)
+        body_pos, body_quat = forward_kinematics(root, local, OFFSETS)
+        legs = _standing_legs(t, width=_STAND_WIDTH)
+        for s, sign in SIDES.items():
+            ball0 = body_pos[i_step, B[f"{s}_Toe"]].copy()
+            legs[s].ball = np.tile(ball0, (n, 1))
+            legs[s].foot_yaw = np.full(n, sign * 6 * DEG)
+            legs[s].foot_pitch = np.full(n, 0.0)
+            legs[s].grounded = np.ones(n, bool)
+        # The front foot comes forward between the hands and is put down flat, level with the hip.
+        f = legs[self.side]
+        hip = body_pos[self._index("kneel"), B[f"{self.side}_Hip"]]
+        land = np.array([hip[0] + 0.2, SIDES[self.side] * _STAND_WIDTH, BALL_HEIGHT[self.side]])
+        start = f.ball[i_step].copy()
+        s = _minjerk((t - self.keys["step"]) / (self.keys["rise"] - self.keys["step"]))
+        f.ball = start + s[:, None] * (land - start)
+        f.ball[:, 2] += 0.10 * np.sin(np.pi * s)
+        f.grounded = (s <= 0) | (s >= 1)
+        # the foot's pitch at the step's start: whatever the tucked toes give; flat on landing
+        shin_pitch = self._foot_pitch(body_quat[i_step, B[f"{self.side}_Ankle"]], f.foot_yaw[0])
+        f.foot_pitch = (1 - s) * shin_pitch
+        f.toe_flat = np.where(s >= 1, 1.0, 0.3)
+        # The back foot stays tucked until the rise is over, then steps beside the front one.
+        b = legs[self.back]
+        b_start = b.ball[i_step].copy()
+        b.foot_pitch = np.full(n, self._foot_pitch(body_quat[i_step, B[f"{self.back}_Ankle"]], b.foot_yaw[0]))
+        s2 = _minjerk((t - self.keys["close"]) / (self.keys["stand"] - self.keys["close"]))
+        b_land = np.array([land[0], SIDES[self.back] * _STAND_WIDTH, BALL_HEIGHT[self.back]])
+        b.ball = b_start + s2[:, None] * (b_land - b_start)
+        b.ball[:, 2] += 0.08 * np.sin(np.pi * s2)
+        heel = _minjerk((t - self.keys["up"]) / (self.keys["close"] - self.keys["up"]))
+        b.foot_pitch = (1 - s2) * ((1 - heel) * b.foot_pitch + heel * 35 * DEG)
+        b.grounded = (s2 <= 0) | (s2 >= 1)
+        b.toe_flat = np.where(s2 >= 1, 1.0, 0.0)
+        return legs
+
+    @staticmethod
+    def _foot_pitch(foot_quat, yaw) -> float:
+        """The foot's pitch about its yawed left axis, up to 180 degrees (a tucked foot points
+        back and down)."""
+        x = quat_apply(foot_quat, [1.0, 0.0, 0.0])
+        return float(np.arctan2(-x[2], x[0] * np.cos(yaw) + x[1] * np.sin(yaw)))
+
+    def _solve_leg_from(self, spec, side, local, i0):
+        solved = local.copy()
+        _solve_leg(spec, side, solved)
+        for j in ("Hip", "Knee", "Ankle"):
+            b = B[f"{side}_{j}"]
+            local[i0:, b] = solved[i0:, b]
+        # The toes keep their own curve (tucked under until the foot is flat): the IK's toe
+        # follows the foot's pitch, which a tucked foot past the vertical does not have.
+        local[i0:, B[f"{side}_Toe"]] = _axis_quat(1, self.toe_curve(side))[i0:]
+
+    def toe_curve(self, side: str) -> np.ndarray:
+        tucked = -50 * DEG
+        if side == self.side:  # flat once the front foot is down
+            return self.curve([("lie", 0.0), ("hands", 0.0), ("kneel", tucked), ("step", tucked), ("rise", 0.0)])
+        return self.curve([("lie", 0.0), ("hands", 0.0), ("kneel", tucked), ("up", tucked), ("close", -20 * DEG),
+                           ("stand", 0.0)])
+
+    def _rise(self, spec, local, i_step, i_up):
+        """From the step to the end: the pelvis keeps the back knee on the floor until the rise,
+        then rises over the front foot; the centre of mass is balanced over the support."""
+        t, n = self.t, len(self.t)
+        root = spec.pelvis_pos
+        front = [B[f"{self.side}_{j}"] for j in ("Hip", "Knee", "Ankle", "Toe")]
+        # Until the rise: height and position from the floor contacts other than the front leg.
+        for _ in range(3):
+            z = self._floor_height(root, local, exclude=front)
+            root[i_step:, 2] = z[i_step:] - _SINK
+            xy = self._pinned(root, local, exclude=front)
+            root[i_step:, :2] = root[i_step - 1, :2] + xy[i_step:] - xy[i_step - 1]
+            self._solve_leg_from(spec, self.side, local, i_step)
+        i_rise = self._index("rise")
+        # From the rise on: both legs by IK, the pelvis lifted and balanced.
+        kneel_z = root[i_up, 2]
+        lift = _minjerk((t - self.keys["rise"]) / (self.keys["close"] - self.keys["rise"]))
+        front_support = spec.legs[self.side].ball + quat_apply(
+            yaw_quat(spec.legs[self.side].foot_yaw), FOOT_CENTRE[self.side])
+        back_support = spec.legs[self.back].ball + quat_apply(
+            yaw_quat(spec.legs[self.back].foot_yaw), FOOT_CENTRE[self.back])
+        com0 = centre_of_mass(*forward_kinematics(root, local, OFFSETS), SKELETON)[i_rise, :2]
+        # over the front foot while the back one steps, between both at the end
+        w_front = self.curve([("rise", 0.0), ("up", 0.7), ("close", 0.85), ("stand", 0.5)])
+        target = (w_front[:, None] * front_support + (1 - w_front[:, None]) * back_support)[:, :2]
+        into = self.curve([("rise", 0.0), ("up", 1.0)])[:, None]
+        target = (1 - into) * com0 + into * target
+        for _ in range(5):
+            reach = np.minimum(_max_pelvis_height(spec, self.side), _max_pelvis_height(spec, self.back))
+            stand = reach[-1] - 0.01
+            z = kneel_z + lift * (stand - kneel_z)
+            root[i_rise:, 2] = np.minimum(z, reach - 0.01)[i_rise:]
+            for side in SIDES:
+                self._solve_leg_from(spec, side, local, i_rise)
+            com = centre_of_mass(*forward_kinematics(root, local, OFFSETS), SKELETON)[:, :2]
+            root[i_rise:, :2] += (target - com)[i_rise:]
+
+
+def _smooth(x, radius: int):
+    taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / (radius / 2)) ** 2)
+    return np.convolve(np.pad(x, radius, mode="edge"), taps / taps.sum(), mode="valid")
+
+
+def _rotation_between(a, b):
+    """Quaternions (..., 4) of the shortest rotation taking unit vectors a to b."""
+    w = 1.0 + np.sum(a * b, -1, keepdims=True)
+    q = np.concatenate([w, np.cross(a, b)], -1)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)

@@ -20,7 +20,8 @@ SMALL = 0.08  # of every family's clip count: a corpus of ~100 clips for the fas
 
 @pytest.fixture(scope="module")
 def small_corpus():
-    return {split: C.generate(f"corpus:{split}", progress=False, scale=SMALL) for split in C.SPLITS}
+    # every family, the opt-in get-ups too
+    return {split: C.generate(f"corpus:{split}+recovery", progress=False, scale=SMALL) for split in C.SPLITS}
 
 
 def test_a_clip_is_the_same_for_a_seed_and_differs_for_another():
@@ -89,7 +90,13 @@ def test_the_default_corpus_is_big_enough():
 
 
 def test_names_resolve_to_splits_families_and_groups():
-    assert C.parse("corpus:train") == ("train", list(C.FAMILIES))
+    defaults = [f for f in C.FAMILIES if f != "getup"]
+    assert C.parse("corpus:train") == ("train", defaults)  # the opt-in get-ups are not in it
+    assert C.parse("corpus:test+getup") == ("test", defaults + ["getup"])
+    assert C.parse("corpus:test/getup") == C.parse("corpus:test/recovery") == ("test", ["getup"])
+    assert C.parse("corpus:locomotion+kick") == ("train", ["walk", "run", "turn_in_place", "side_step", "backward", "kick"])
+    with pytest.raises(ValueError, match="'swim' after '\\+'"):
+        C.parse("corpus:train+swim")
     assert C.parse("corpus:test/walk") == ("test", ["walk"])
     assert C.parse("corpus:kick") == ("train", ["kick"])
     assert set(C.parse("corpus:test/locomotion")[1]) == {"walk", "run", "turn_in_place", "side_step", "backward"}

@@ -19,6 +19,10 @@ the clip's own stream (at most `MAX_TRIES` times); the number of redraws is part
 Users name it wherever motions are accepted: "corpus:train", "corpus:test",
 "corpus:<family>" (that family's training clips), "corpus:test/<family>", and groups of families
 ("corpus:locomotion", "corpus:test/upper_body").
+
+One group is opt-in: "recovery" (getting up from the floor) is left out of "corpus:train" and
+"corpus:test", whose meaning (and every result measured on them) stays that of the imitation
+families; "corpus:getup", "corpus:test/getup" and "corpus:train+getup" name it.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ import numpy as np
 from ..progress import pbar
 from .motion import RawMotion
 from .plausibility import check_motion
+from . import getup as gu
 from . import procedural as syn
 from . import upper_body as ub
 from . import whole_body as wb
@@ -113,6 +118,7 @@ HOP_FLIGHT, HOP_FLIGHT_BAND, HOP_DISTANCE = (0.15, 0.3), (0.2, 0.22), (0.0, 0.4)
 TRANSITION_ACTIONS = ("none", "reach", "wave", "turn")
 HELD_OUT_SEQUENCE = ("reach", "turn")
 TRANSITION_TURN_RATE = 1.0  # rad/s, turning on the spot during a stop
+GETUP_TEMPO_BAND = (0.95, 1.05)  # the get-up's speed factor (its range: getup.RANGES)
 
 
 # ----------------------------------------------------------------------------- locomotion
@@ -329,6 +335,12 @@ def hop(d: Draw) -> RawMotion:
                   direction=d.uniform("direction", -np.pi, np.pi))
 
 
+def getup(d: Draw) -> RawMotion:
+    r = gu.RANGES["getup"]
+    return gu.getup(d.choice("start", gu.STARTS), d.choice("side", ("L", "R")), d.choice("roll", ("L", "R")),
+                    **{name: d.uniform(name, *r[name]) for name in r})
+
+
 # ----------------------------------------------------------------------------- transitions
 
 def transition(d: Draw) -> RawMotion:
@@ -397,6 +409,7 @@ class Family:
     test: int
     held_out: dict[str, tuple[float, float]] = field(default_factory=dict)
     description: str = ""
+    default: bool = True  # part of "corpus:train" / "corpus:test" (else named explicitly)
 
 
 FAMILIES: dict[str, Family] = {f.name: f for f in (
@@ -421,6 +434,9 @@ FAMILIES: dict[str, Family] = {f.name: f for f in (
     Family("hop", "whole_body", hop, 30, 6, {"flight": HOP_FLIGHT_BAND}, "one-leg hops"),
     Family("transition", "transitions", transition, 100, 16, {"speed": WALK_SPEED_BAND},
            "walk, stop, reach / wave / turn, walk on"),
+    # Appended last: a family's index seeds its clips, so the others' stay as they were.
+    Family("getup", "recovery", getup, 60, 10, {"tempo": GETUP_TEMPO_BAND},
+           "from lying on the front or back to standing, by hands and knees and a half-kneel", default=False),
 )}
 GROUPS = tuple(dict.fromkeys(f.group for f in FAMILIES.values()))
 
@@ -470,21 +486,32 @@ def make_clip(seed: int, split: str, family: str, index: int) -> tuple[RawMotion
 
 def parse(spec: str) -> tuple[str, list[str]]:
     """("train" | "test", families) for "corpus:train", "corpus:test/<family or group>",
-    "corpus:<family or group>" (training split)."""
+    "corpus:<family or group>" (training split), and "+"-joined terms ("corpus:test+getup")."""
     if not spec.startswith("corpus:"):
         raise ValueError(f"not a corpus name: {spec!r}")
     body = spec[len("corpus:"):]
+    if "+" in body:  # "corpus:train+getup": more families or groups in the first term's split
+        first, *more = body.split("+")
+        split, families = parse(f"corpus:{first}")
+        for term in more:
+            if term not in FAMILIES and term not in GROUPS:
+                raise ValueError(f"{spec!r}: {term!r} after '+' is not a corpus family or group; families: "
+                                 f"{list(FAMILIES)}, groups: {list(GROUPS)}")
+            _, extra = parse(f"corpus:{split}/{term}")
+            families += [f for f in extra if f not in families]
+        return split, families
     split, _, part = body.partition("/")
     if split not in SPLITS:
         split, part = "train", body
+    defaults = [f.name for f in FAMILIES.values() if f.default]
     if part in ("", None):
-        return split, list(FAMILIES)
+        return split, defaults
     if part in FAMILIES:
         return split, [part]
     if part in GROUPS:
         return split, [f.name for f in FAMILIES.values() if f.group == part]
     raise ValueError(f"{spec!r}: unknown corpus family or group {part!r}; families: {list(FAMILIES)}, "
-                     f"groups: {list(GROUPS)}, splits: {list(SPLITS)} (e.g. 'corpus:test/walk')")
+                     f"groups: {list(GROUPS)}, splits: {list(SPLITS)} (e.g. 'corpus:test/walk', 'corpus:train+getup')")
 
 
 def generate(spec: str = "corpus:train", seed: int = DEFAULT_SEED, progress: bool = True,

@@ -16,15 +16,14 @@ runs). The clip is directed in phases, each a minimum-jerk blend between key pos
   `procedural`, foot flat and still; while rising the other leg is too, and the pelvis moves so
   that the centre of mass stays over the support.
 
-Status (2026-12-03): work in progress, not yet a corpus family. The clip reads as a get-up in a
-frame strip from both starts, but it does not pass `check_motion` yet: the front hip goes a few
-degrees past its anatomical range while the foot comes forward and the body rises (and one hinge
-decomposition flips near gimbal lock there), and while the hands are put down the body is not
-yet resting on its contacts. Those have to pass before `corpus.FAMILIES` may hold it.
+Every clip passes `check_motion` as it is drawn for the corpus (about 19 in 20 parameter draws do;
+the corpus redraws the others). Two choices make that so: the knees stay under the hips on hands
+and knees, and the pelvis keeps the front hip in its foot's plane while its flexion passes
+90 deg, since the humanoid's x-y-z hip hinges are in gimbal lock there and any abduction makes
+them flip; and bodies on the floor rest `_SINK` deep in it.
 
 `getup(...)` is a pure, deterministic function of its parameters; `RANGES["getup"]` holds them.
-The clip ends standing still in the suite's standing pose (feet 0.1 m either side), so it chains
-with the other families. Frames, axes and signs are procedural's: x forward, y left, z up.
+The clip ends standing still, feet 0.2 m apart, so it chains with the other families. Frames, axes and signs are procedural's: x forward, y left, z up.
 """
 
 from __future__ import annotations
@@ -32,7 +31,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..humanoid.kinematics import forward_kinematics, lowest_point
-from ..rotations import quat_apply, quat_from_euler_xyz, quat_inv, quat_mul, yaw_quat
+from ..humanoid.skeleton import anatomical_limits
+from ..rotations import quat_apply, quat_from_euler_xyz, quat_inv, quat_mul, quat_to_euler_xyz, yaw_quat
 from .motion import FPS, RawMotion
 from .plausibility import centre_of_mass, support_points_world
 from .procedural import (
@@ -47,10 +47,8 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
         # speed factor of the whole movement (durations / tempo)
         "tempo": (0.7, 1.3),
         # lateral half-distance of the hands on the floor, and how far ahead of the shoulders
-        "hand_width": (0.14, 0.24),
-        "hand_ahead": (-0.04, 0.12),
-        # lateral half-distance of the knees on hands and knees
-        "knee_width": (0.06, 0.14),
+        "hand_width": (0.16, 0.24),
+        "hand_ahead": (-0.04, 0.06),
         # seconds spent lying before moving, and on hands and knees
         "lie": (0.3, 1.5),
         "kneel": (0.1, 0.8),
@@ -61,12 +59,16 @@ STARTS = ("front", "back")
 _FLOOR_BODIES = np.array([i for i in range(24) if i not in {B[f"{s}_{p}"] for s in SIDES
                                                             for p in ("Shoulder", "Elbow", "Wrist", "Hand")}])
 _HAND_REST = 0.003  # m: how far above the floor the hand's lowest point is aimed (inside the contact band)
-_PHASES = ("lie", "roll", "hands", "push", "kneel", "step", "rise", "up", "close", "stand", "end")
+_PHASES = ("lie", "roll", "hands", "push", "kneel", "step", "rise", "up", "close", "stand", "still", "end")
 _NEXT = dict(zip(_PHASES[:-1], _PHASES[1:]))
 # m: bodies on the floor rest this deep in it, as soft tissue and MuJoCo's soft contacts do: a
 # capsule body otherwise rests on its one lowest point, and a few mm decide which limb that is.
 _SINK = 0.004
-_STAND_WIDTH = 0.1  # m: the standing pose's toe joints either side of the centre line
+_STAND_WIDTH = 0.1
+_LIMITS = anatomical_limits()  # (69, 2) rad
+_LANDING_AHEAD = 0.03  # m: the stepping foot's toe joint ahead of its hip on hands and knees
+_LANDING_HEEL = 20 * DEG  # the stepping foot's heel raised as it lands
+_BALL_PITCH = 50 * DEG  # the back foot's heel raised while the body rises over the front one  # m: the standing pose's toe joints either side of the centre line
 
 
 def _check(name: str, value, bounds=None) -> float:
@@ -81,7 +83,7 @@ def _check(name: str, value, bounds=None) -> float:
 
 
 def getup(start: str = "back", side: str = "L", roll: str = "L", tempo: float = 1.0,
-          hand_width: float = 0.18, hand_ahead: float = 0.04, knee_width: float = 0.1,
+          hand_width: float = 0.18, hand_ahead: float = 0.02,
           lie: float = 0.8, kneel: float = 0.3, name: str = "getup") -> RawMotion:
     """Lying on the `start` ("front": face down, "back": face up), getting up to standing.
 
@@ -96,23 +98,23 @@ def getup(start: str = "back", side: str = "L", roll: str = "L", tempo: float = 
             raise ValueError(f"getup: {key} = {value!r} must be 'L' or 'R'")
     tempo = _check("tempo", tempo)
     p = {k: _check(k, v) for k, v in (("hand_width", hand_width), ("hand_ahead", hand_ahead),
-                                       ("knee_width", knee_width), ("lie", lie), ("kneel", kneel))}
+                                       ("lie", lie), ("kneel", kneel))}
     return _Getup(start, side, roll, tempo, **p).clip(name)
 
 
 class _Getup:
     """The phases, their key postures and the solve. Times in seconds from the clip's start."""
 
-    def __init__(self, start, side, roll, tempo, hand_width, hand_ahead, knee_width, lie, kneel):
+    def __init__(self, start, side, roll, tempo, hand_width, hand_ahead, lie, kneel):
         self.side, self.back = side, ("R" if side == "L" else "L")
-        self.hand_width, self.hand_ahead, self.knee_width = hand_width, hand_ahead, knee_width
+        self.hand_width, self.hand_ahead = hand_width, hand_ahead
         durations = [("lie", lie), ("roll", 1.4 if start == "back" else 0.0), ("hands", 0.7),
                      ("push", 1.3), ("kneel", kneel), ("step", 1.0), ("rise", 1.2), ("up", 1.1),
-                     ("close", 0.8), ("stand", 0.8)]
+                     ("close", 0.8), ("stand", 0.8), ("still", 0.5)]
         self.keys, t = {}, 0.0
         for phase, d in durations:
             self.keys[phase] = t
-            t += d / tempo if phase not in ("lie", "kneel") else d
+            t += d / tempo if phase not in ("lie", "kneel", "still") else d
         self.keys["end"] = t
         self.t = np.arange(int(round(t * FPS)) + 1) / FPS
         self.start, self.roll_sign = start, SIDES[roll]
@@ -132,8 +134,11 @@ class _Getup:
         """Per-frame pelvis orientation and hinge angles of the floor phases."""
         t, c = self.t, self.curve
         n = len(t)
-        pitch = c([("lie", 90 * DEG), ("push", 90 * DEG), ("step", 85 * DEG), ("rise", 62 * DEG),
-                   ("up", 15 * DEG), ("close", 6 * DEG), ("stand", 0.0)])
+        # The pelvis tips up as the front thigh comes forward (hip flexion is pitch plus the
+        # thigh's elevation and stops at 140 deg); the spine keeps the chest low while the
+        # hands bear weight.
+        pitch = c([("lie", 90 * DEG), ("push", 90 * DEG), ("step", 88 * DEG), ("rise", 62 * DEG),
+                   (("rise", 0.45), 45 * DEG), ("up", 12 * DEG), ("close", 5 * DEG), ("stand", 0.0)])
         # From the back the body rolls about its long axis onto the front: psi 180 -> 0 deg.
         psi = (c([("lie", np.pi), ("roll", np.pi), ("hands", 0.0)]) * self.roll_sign
                if self.start == "back" else np.zeros(n))
@@ -146,17 +151,24 @@ class _Getup:
             flex = c([("lie", lying), ("roll", lying), ("hands", 6 * DEG), ("push", 6 * DEG), ("kneel", 92 * DEG)])
             if s == self.back:  # the kneeling thigh stays upright as the body rises over it
                 flex = np.where(t >= self.keys["kneel"], pitch + 2 * DEG, flex)
+            knee_flex = c([("lie", 4 * DEG), ("push", 8 * DEG), ("kneel", 118 * DEG)])
+            if self.start == "back" and sign == self.roll_sign:
+                # the leg on top crosses over, knee to the floor: the body rolls over it instead
+                # of balancing on its side
+                cross = self.curve([("roll", 0.0), (("roll", 0.5), 1.0), ("hands", 0.0)])
+                flex = flex + cross * 50 * DEG
+                knee_flex = knee_flex + cross * 70 * DEG
             angles[:, hip, 1] = -flex
-            angles[:, knee, 1] = c([("lie", 4 * DEG), ("push", 8 * DEG), ("kneel", 118 * DEG)])
-            # Knees apart on hands and knees; a log roll keeps the legs together.
-            spread = np.arcsin(np.clip(self.knee_width / 0.4, 0, 0.5)) - 3 * DEG
-            angles[:, hip, 0] = sign * c([("lie", 3 * DEG), ("push", 3 * DEG), ("kneel", spread)])
+            angles[:, knee, 1] = knee_flex
+            # Legs a little apart lying; on hands and knees each knee under its hip (the hips are
+            # flexed 90 deg there, where abduction would make their hinges flip).
+            angles[:, hip, 0] = sign * c([("lie", 3 * DEG), ("push", 3 * DEG), ("kneel", 0.0)])
             # Toes tucked under on the floor: the foot at a right angle to the shin.
             angles[:, ankle, 1] = c([("lie", 25 * DEG), ("hands", 25 * DEG), ("kneel", 0.0)])
             angles[:, B[f"{s}_Toe"], 1] = self.toe_curve(s)
         # The spine: a slight arch lying, a flat back on hands and knees, upright when standing.
-        lean = c([("lie", -4 * DEG), ("push", -4 * DEG), ("kneel", 6 * DEG), ("rise", 8 * DEG),
-                  ("up", 10 * DEG), ("close", 2 * DEG)])
+        lean = c([("lie", -4 * DEG), ("push", -4 * DEG), ("kneel", 6 * DEG), ("step", 6 * DEG), ("rise", 20 * DEG),
+                  (("rise", 0.45), 25 * DEG), ("up", 12 * DEG), ("close", 2 * DEG)])
         for body, share in (("Torso", 0.4), ("Spine", 0.35), ("Chest", 0.25)):
             angles[:, B[body], 1] = share * lean
         # The head looks at the floor ahead on the floor and forward when up.
@@ -197,7 +209,7 @@ class _Getup:
         # The front foot: from the step on, planted where the step puts it.
         i_step, i_rise = self._index("step"), self._index("rise")
         legs = self._leg_targets(root, local, i_step, i_rise)
-        spec = _Spec(t, root, pelvis_quat, legs, free)
+        spec = _Spec(t, root, local[:, 0].copy(), legs, free)
         self._solve_leg_from(spec, self.side, local, i_step)
         # Back leg hinge angles hold the kneel until it rises; then IK too.
         i_up = self._index("rise")
@@ -232,7 +244,7 @@ class _Getup:
             gaps.append(z[:, upper].min(1) - z[:, lower].min(1))
         gaps = np.array(gaps)  # (grid, T): crosses zero where both rest on the floor
         best = grid[np.argmin(np.abs(gaps), axis=0)]
-        weight = self.curve([("lie", 1.0), ("hands", 1.0), ("push", 0.0)])
+        weight = self.curve([("lie", 1.0), ("push", 1.0), (("push", 0.5), 0.0)])
         delta = _smooth(best, 5) * weight
         local[:, 0] = quat_mul(_axis_quat(1, delta), local[:, 0])
 
@@ -319,7 +331,7 @@ class _Getup:
         l1 = np.linalg.norm(OFFSETS[B[f"{s}_Elbow"]])
         l2 = np.linalg.norm(OFFSETS[B[f"{s}_Wrist"]])
         goal_low = aim + [0, 0, _HAND_REST]
-        for _ in range(20):
+        for _ in range(40):
             _, q = forward_kinematics(root, work, OFFSETS)
             chest_q = q[:, B["Chest"]]
             _solve_arm(s, chest_q, q[:, B[f"{s}_Thorax"]], upper, elbow, twist, work)
@@ -343,32 +355,42 @@ class _Getup:
         for s, sign in SIDES.items():
             ball0 = body_pos[i_step, B[f"{s}_Toe"]].copy()
             legs[s].ball = np.tile(ball0, (n, 1))
-            legs[s].foot_yaw = np.full(n, sign * 6 * DEG)
+            legs[s].foot_yaw = np.zeros(n)
             legs[s].foot_pitch = np.full(n, 0.0)
             legs[s].grounded = np.ones(n, bool)
         # The front foot comes forward between the hands and is put down flat, level with the hip.
         f = legs[self.side]
         hip = body_pos[self._index("kneel"), B[f"{self.side}_Hip"]]
-        land = np.array([hip[0] + 0.2, SIDES[self.side] * _STAND_WIDTH, BALL_HEIGHT[self.side]])
+        # straight ahead of its hip: the leg then flexes in its own plane, with no abduction or
+        # twist that would make the hip's x-y-z hinges flip as its flexion passes 90 deg
+        rest_lateral = sum(OFFSETS[B[f"{self.side}_{j}"]][1] for j in ("Knee", "Ankle", "Toe"))
+        land = np.array([hip[0] + _LANDING_AHEAD, hip[1] + rest_lateral, BALL_HEIGHT[self.side]])
         start = f.ball[i_step].copy()
         s = _minjerk((t - self.keys["step"]) / (self.keys["rise"] - self.keys["step"]))
         f.ball = start + s[:, None] * (land - start)
         f.ball[:, 2] += 0.10 * np.sin(np.pi * s)
         f.grounded = (s <= 0) | (s >= 1)
-        # the foot's pitch at the step's start: whatever the tucked toes give; flat on landing
+        # the foot's pitch at the step's start: whatever the tucked toes give; it lands on its
+        # ball, heel raised (the shin leans far forward in the crouch), and flattens as the body
+        # rises over it
         shin_pitch = self._foot_pitch(body_quat[i_step, B[f"{self.side}_Ankle"]], f.foot_yaw[0])
-        f.foot_pitch = (1 - s) * shin_pitch
+        heel = self.curve([("rise", _LANDING_HEEL), ("up", 0.0)])
+        f.foot_pitch = (1 - s) * shin_pitch + s * heel
         f.toe_flat = np.where(s >= 1, 1.0, 0.3)
         # The back foot stays tucked until the rise is over, then steps beside the front one.
         b = legs[self.back]
         b_start = b.ball[i_step].copy()
         b.foot_pitch = np.full(n, self._foot_pitch(body_quat[i_step, B[f"{self.back}_Ankle"]], b.foot_yaw[0]))
         s2 = _minjerk((t - self.keys["close"]) / (self.keys["stand"] - self.keys["close"]))
-        b_land = np.array([land[0], SIDES[self.back] * _STAND_WIDTH, BALL_HEIGHT[self.back]])
+        b_land = np.array([land[0], land[1] + SIDES[self.back] * 2 * _STAND_WIDTH, BALL_HEIGHT[self.back]])
+        # As the knee lifts the shin pivots on it and the ball of the foot comes down to the
+        # floor, the foot on its ball with the toes flat: it pushes while the body rises.
+        down = self.curve([("rise", 0.0), (("rise", 0.45), 1.0)])
+        b_start = np.tile(b_start, (n, 1))
+        b_start[:, 2] += down * (BALL_HEIGHT[self.back] - b_start[:, 2])
         b.ball = b_start + s2[:, None] * (b_land - b_start)
         b.ball[:, 2] += 0.08 * np.sin(np.pi * s2)
-        heel = _minjerk((t - self.keys["up"]) / (self.keys["close"] - self.keys["up"]))
-        b.foot_pitch = (1 - s2) * ((1 - heel) * b.foot_pitch + heel * 35 * DEG)
+        b.foot_pitch = (1 - s2) * ((1 - down) * b.foot_pitch + down * _BALL_PITCH)
         b.grounded = (s2 <= 0) | (s2 >= 1)
         b.toe_flat = np.where(s2 >= 1, 1.0, 0.0)
         return legs
@@ -386,6 +408,15 @@ class _Getup:
         for j in ("Hip", "Knee", "Ankle"):
             b = B[f"{side}_{j}"]
             local[i0:, b] = solved[i0:, b]
+        # A foot in the air may turn its ankle past the range on the way to the floor target's
+        # orientation: held at the range instead (the foot is where it should be once it lands).
+        ankle = B[f"{side}_Ankle"]
+        air = np.flatnonzero(~spec.legs[side].grounded)
+        air = air[air >= i0]
+        if len(air):
+            lo, hi = (_LIMITS[3 * (ankle - 1): 3 * ankle] + [[1 * DEG, -1 * DEG]]).T
+            euler = quat_to_euler_xyz(local[air, ankle])
+            local[air, ankle] = quat_from_euler_xyz(np.clip(euler, lo, hi))
         # The toes keep their own curve (tucked under until the foot is flat): the IK's toe
         # follows the foot's pitch, which a tucked foot past the vertical does not have.
         local[i0:, B[f"{side}_Toe"]] = _axis_quat(1, self.toe_curve(side))[i0:]
@@ -393,16 +424,19 @@ class _Getup:
     def toe_curve(self, side: str) -> np.ndarray:
         tucked = -50 * DEG
         if side == self.side:  # flat once the front foot is down
-            return self.curve([("lie", 0.0), ("hands", 0.0), ("kneel", tucked), ("step", tucked), ("rise", 0.0)])
-        return self.curve([("lie", 0.0), ("hands", 0.0), ("kneel", tucked), ("up", tucked), ("close", -20 * DEG),
-                           ("stand", 0.0)])
+            return self.curve([("lie", 0.0), ("hands", 0.0), ("kneel", tucked), ("step", tucked),
+                               ("rise", -_LANDING_HEEL), ("up", 0.0)])
+        return self.curve([("lie", 0.0), ("hands", 0.0), ("kneel", tucked), ("rise", tucked), (("rise", 0.45), -_BALL_PITCH),
+                           ("close", -_BALL_PITCH), ("stand", 0.0)])
 
     def _rise(self, spec, local, i_step, i_up):
         """From the step to the end: the pelvis keeps the back knee on the floor until the rise,
         then rises over the front foot; the centre of mass is balanced over the support."""
         t, n = self.t, len(self.t)
         root = spec.pelvis_pos
-        front = [B[f"{self.side}_{j}"] for j in ("Hip", "Knee", "Ankle", "Toe")]
+        # the stepping foot is placed by its targets; its knee stays a floor body until it lifts
+        front = [B[f"{self.side}_{j}"] for j in ("Ankle", "Toe")]
+        rest_lateral = sum(OFFSETS[B[f"{self.side}_{j}"]][1] for j in ("Knee", "Ankle", "Toe"))
         # Until the rise: height and position from the floor contacts other than the front leg.
         for _ in range(3):
             z = self._floor_height(root, local, exclude=front)
@@ -420,9 +454,10 @@ class _Getup:
             yaw_quat(spec.legs[self.back].foot_yaw), FOOT_CENTRE[self.back])
         com0 = centre_of_mass(*forward_kinematics(root, local, OFFSETS), SKELETON)[i_rise, :2]
         # over the front foot while the back one steps, between both at the end
-        w_front = self.curve([("rise", 0.0), ("up", 0.7), ("close", 0.85), ("stand", 0.5)])
+        w_front = self.curve([("rise", 0.0), ("up", 0.7), ("close", 1.0), ("stand", 1.0), ("still", 0.5)])
         target = (w_front[:, None] * front_support + (1 - w_front[:, None]) * back_support)[:, :2]
         into = self.curve([("rise", 0.0), ("up", 1.0)])[:, None]
+        align = self.curve([("rise", 1.0), ("up", 1.0), ("close", 0.0)])
         target = (1 - into) * com0 + into * target
         for _ in range(5):
             reach = np.minimum(_max_pelvis_height(spec, self.side), _max_pelvis_height(spec, self.back))
@@ -432,7 +467,21 @@ class _Getup:
             for side in SIDES:
                 self._solve_leg_from(spec, side, local, i_rise)
             com = centre_of_mass(*forward_kinematics(root, local, OFFSETS), SKELETON)[:, :2]
-            root[i_rise:, :2] += (target - com)[i_rise:]
+            root[i_rise:, 0] += (target - com)[i_rise:, 0]
+            # Sideways the pelvis keeps the front hip in its foot's plane (the centre of mass
+            # stays between the feet): a degree of abduction as the hip's flexion passes 90 deg
+            # would make its x-y-z hinges flip.
+            # Once the hip is well below 90 deg the centre of mass is balanced sideways too, over
+            # the front foot while the other steps.
+            hip = forward_kinematics(root, local, OFFSETS)[0][:, B[f"{self.side}_Hip"], 1]
+            com = centre_of_mass(*forward_kinematics(root, local, OFFSETS), SKELETON)[:, :2]
+            shift = align * (spec.legs[self.side].ball[:, 1] - rest_lateral - hip) + (1 - align) * (target - com)[:, 1]
+            root[i_rise:, 1] += shift[i_rise:]
+        # the last move was horizontal: lower the pelvis where that took a foot out of reach
+        reach = np.minimum(_max_pelvis_height(spec, self.side), _max_pelvis_height(spec, self.back))
+        root[i_rise:, 2] = np.minimum(root[:, 2], reach - 0.01)[i_rise:]
+        for side in SIDES:
+            self._solve_leg_from(spec, side, local, i_rise)
 
 
 def _smooth(x, radius: int):

@@ -36,7 +36,7 @@ from ..rotations import quat_apply, quat_from_euler_xyz, quat_inv, quat_mul, qua
 from .motion import FPS, RawMotion
 from .plausibility import centre_of_mass, support_points_world
 from .procedural import (
-    B, BALL_HEIGHT, DEG, FOOT_CENTRE, OFFSETS, SIDES, SKELETON, _arm, _axis_quat, _keys,
+    B, BALL_HEIGHT, DEG, FOOT_CENTRE, check_number, OFFSETS, SIDES, SKELETON, _arm, _axis_quat, _keys,
     _max_pelvis_height, _minjerk, _normalize, _rot, _solve_arm, _solve_leg, _Spec, _standing_legs,
 )
 
@@ -64,22 +64,15 @@ _NEXT = dict(zip(_PHASES[:-1], _PHASES[1:]))
 # m: bodies on the floor rest this deep in it, as soft tissue and MuJoCo's soft contacts do: a
 # capsule body otherwise rests on its one lowest point, and a few mm decide which limb that is.
 _SINK = 0.004
-_STAND_WIDTH = 0.1
+_STAND_WIDTH = 0.1  # m: the standing pose's toe joints either side of the centre line
 _LIMITS = anatomical_limits()  # (69, 2) rad
 _LANDING_AHEAD = 0.03  # m: the stepping foot's toe joint ahead of its hip on hands and knees
 _LANDING_HEEL = 20 * DEG  # the stepping foot's heel raised as it lands
-_BALL_PITCH = 50 * DEG  # the back foot's heel raised while the body rises over the front one  # m: the standing pose's toe joints either side of the centre line
+_BALL_PITCH = 50 * DEG  # the back foot's heel raised while the body rises over the front one
 
 
-def _check(name: str, value, bounds=None) -> float:
-    lo, hi = RANGES["getup"][name] if bounds is None else bounds
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"getup: {name} must be a number, got {value!r}") from None
-    if not np.isfinite(x) or not lo - 1e-9 <= x <= hi + 1e-9:
-        raise ValueError(f"getup: {name} = {value!r} is outside [{lo:.4g}, {hi:.4g}]")
-    return x
+def _check(name: str, value) -> float:
+    return check_number("getup", name, value, RANGES["getup"][name])
 
 
 def getup(start: str = "back", side: str = "L", roll: str = "L", tempo: float = 1.0,

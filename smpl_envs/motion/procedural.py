@@ -70,6 +70,18 @@ FOOT_CENTRE = {
 
 # ----------------------------------------------------------------------------- small helpers
 
+def check_number(family: str, name: str, value, bounds: tuple[float, float]) -> float:
+    """`value` as a float, or a ValueError naming the family, the parameter and its range."""
+    lo, hi = bounds
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{family}: {name} must be a number, got {value!r}") from None
+    if not np.isfinite(x) or not lo - 1e-9 <= x <= hi + 1e-9:
+        raise ValueError(f"{family}: {name} = {value!r} is outside [{lo:.4g}, {hi:.4g}]")
+    return x
+
+
 def _time(duration: float) -> np.ndarray:
     return np.arange(int(round(duration * FPS)) + 1) / FPS
 

@@ -25,7 +25,7 @@ from .motion import FPS, RawMotion
 from .plausibility import GRAVITY
 from .procedural import (
     B, BALL_HEIGHT, DEG, FOOT_CENTRE, OFFSETS, SIDES, SKELETON, _arm, _balanced, _centre_of_mass,
-    _hermite, _keys, _leg_length, _max_pelvis_height, _minjerk, _rot, _smooth_below, _solve, _Spec,
+    _hermite, _keys, _leg_length, check_number, _max_pelvis_height, _minjerk, _rot, _smooth_below, _solve, _Spec,
     _standing_legs, _support_point, _time, _upright_spine,
 )
 
@@ -51,14 +51,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
 # ----------------------------------------------------------------------------- validation
 
 def _check(family: str, name: str, value, bounds: tuple[float, float] | None = None) -> float:
-    lo, hi = RANGES[family][name] if bounds is None else bounds
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{family}: {name} must be a number, got {value!r}") from None
-    if not np.isfinite(x) or not lo - 1e-9 <= x <= hi + 1e-9:
-        raise ValueError(f"{family}: {name} = {value!r} is outside [{lo:.4g}, {hi:.4g}]")
-    return x
+    return check_number(family, name, value, RANGES[family][name] if bounds is None else bounds)
 
 
 def _check_count(family: str, value) -> int:

@@ -9,6 +9,8 @@ canonicalise the sign. Conversions return w >= 0.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -80,7 +82,11 @@ def quat_from_euler_xyz(angles: np.ndarray) -> np.ndarray:
 
 def quat_to_euler_xyz(q: np.ndarray) -> np.ndarray:
     """Inverse of quat_from_euler_xyz; angles in (-pi, pi], the middle one in [-pi/2, pi/2]."""
-    return _rot(q).as_euler("XYZ").reshape(*np.shape(q)[:-1], 3)
+    with warnings.catch_warnings():
+        # At the middle angle +-pi/2 scipy warns and sets the third angle to 0: the angles still
+        # compose to the rotation, which is all callers need (a knee or hip bent 90 deg is common).
+        warnings.filterwarnings("ignore", message="Gimbal lock detected")
+        return _rot(q).as_euler("XYZ").reshape(*np.shape(q)[:-1], 3)
 
 
 def quat_slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray) -> np.ndarray:

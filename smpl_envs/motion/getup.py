@@ -23,7 +23,8 @@ and knees, and the pelvis keeps the front hip in its foot's plane while its flex
 them flip; and bodies on the floor rest `_SINK` deep in it.
 
 `getup(...)` is a pure, deterministic function of its parameters; `RANGES["getup"]` holds them.
-The clip ends standing still, feet 0.2 m apart, so it chains with the other families. Frames, axes and signs are procedural's: x forward, y left, z up.
+The clip ends standing still, feet 0.2 m apart, so it chains with the other families. Frames,
+axes and signs are procedural's: x forward, y left, z up.
 """
 
 from __future__ import annotations
@@ -169,7 +170,7 @@ class _Getup:
         angles[:, B["Neck"], 1] = 0.6 * look
         angles[:, B["Head"], 1] = 0.4 * look
         quat = quat_mul(_rot(np.zeros(n), pitch), _axis_quat(2, psi))
-        return quat, angles, pitch
+        return quat, angles
 
     def hand_weight(self) -> np.ndarray:
         """0: the arm free, 1: the hand on its floor point."""
@@ -187,7 +188,7 @@ class _Getup:
 
     def clip(self, name: str) -> RawMotion:
         t, n = self.t, len(self.t)
-        pelvis_quat, angles, pitch = self.postures()
+        pelvis_quat, angles = self.postures()
         local = quat_from_euler_xyz(angles)
         local[:, 0] = pelvis_quat
         root = np.zeros((n, 3))
@@ -199,16 +200,14 @@ class _Getup:
         root[:, 2] = self._floor_height(root, local) - _SINK
         root[:, :2] = self._pinned(root, local)
 
-        # The front foot: from the step on, planted where the step puts it.
-        i_step, i_rise = self._index("step"), self._index("rise")
-        legs = self._leg_targets(root, local, i_step, i_rise)
-        spec = _Spec(t, root, local[:, 0].copy(), legs, free)
+        # The front foot: from the step on, planted where the step puts it; the back leg holds
+        # its kneel (hinge angles) until the rise, then is solved by IK too.
+        i_step = self._index("step")
+        spec = _Spec(t, root, local[:, 0].copy(), self._leg_targets(root, local, i_step), free)
         self._solve_leg_from(spec, self.side, local, i_step)
-        # Back leg hinge angles hold the kneel until it rises; then IK too.
-        i_up = self._index("rise")
         # The pelvis from the step: height keeps the back knee (floor bodies) on the floor until
         # the rise, then goes up; horizontally, the centre of mass moves over the front foot.
-        self._rise(spec, local, i_step, i_up)
+        self._rise(spec, local, i_step)
         root = spec.pelvis_pos
 
         # Hands on fixed floor points while they bear weight.
@@ -260,15 +259,10 @@ class _Getup:
         bodies = np.array([b for b in _FLOOR_BODIES if b not in exclude])
         pts, reach = pts[:, bodies], reach[bodies]
         touch = pts[..., 2] - reach < 0.015
-        xy = np.zeros((len(root), 2))
-        for i in range(1, len(root)):  # a running sum along time
-            both = touch[i] & touch[i - 1]
-            if both.any():
-                delta = (pts[i, ..., :2] - pts[i - 1, ..., :2])[both].mean(0)
-            else:
-                delta = np.zeros(2)
-            xy[i] = xy[i - 1] - delta
-        return xy
+        both = (touch[1:] & touch[:-1])[..., None]  # (T-1, bodies, K, 1)
+        moved = np.where(both, pts[1:, ..., :2] - pts[:-1, ..., :2], 0.0).sum((1, 2))
+        delta = moved / np.maximum(both.sum((1, 2)), 1)  # no common contact: no correction
+        return np.concatenate([np.zeros((1, 2)), -np.cumsum(delta, axis=0)])
 
     def _hand_targets(self, root, local):
         """Floor points of the hands: beside and a little ahead of where the shoulders are on
@@ -340,7 +334,7 @@ class _Getup:
             upper = quat_apply(quat_inv(chest_q), quat_apply(rot, quat_apply(chest_q, upper)))
         return upper, elbow
 
-    def _leg_targets(self, root, local, i_step, i_rise):
+    def _leg_targets(self, root, local, i_step):
         """IK targets of both legs from the step on (before it the legs are hinge angles)."""
         t, n = self.t, len(self.t)
         body_pos, body_quat = forward_kinematics(root, local, OFFSETS)
@@ -356,8 +350,7 @@ class _Getup:
         hip = body_pos[self._index("kneel"), B[f"{self.side}_Hip"]]
         # straight ahead of its hip: the leg then flexes in its own plane, with no abduction or
         # twist that would make the hip's x-y-z hinges flip as its flexion passes 90 deg
-        rest_lateral = sum(OFFSETS[B[f"{self.side}_{j}"]][1] for j in ("Knee", "Ankle", "Toe"))
-        land = np.array([hip[0] + _LANDING_AHEAD, hip[1] + rest_lateral, BALL_HEIGHT[self.side]])
+        land = np.array([hip[0] + _LANDING_AHEAD, hip[1] + self._rest_lateral(), BALL_HEIGHT[self.side]])
         start = f.ball[i_step].copy()
         s = _minjerk((t - self.keys["step"]) / (self.keys["rise"] - self.keys["step"]))
         f.ball = start + s[:, None] * (land - start)
@@ -387,6 +380,10 @@ class _Getup:
         b.grounded = (s2 <= 0) | (s2 >= 1)
         b.toe_flat = np.where(s2 >= 1, 1.0, 0.0)
         return legs
+
+    def _rest_lateral(self) -> float:
+        """Sideways offset of the front leg's toe joint from its hip in the rest pose."""
+        return float(sum(OFFSETS[B[f"{self.side}_{j}"]][1] for j in ("Knee", "Ankle", "Toe")))
 
     @staticmethod
     def _foot_pitch(foot_quat, yaw) -> float:
@@ -422,14 +419,13 @@ class _Getup:
         return self.curve([("lie", 0.0), ("hands", 0.0), ("kneel", tucked), ("rise", tucked), (("rise", 0.45), -_BALL_PITCH),
                            ("close", -_BALL_PITCH), ("stand", 0.0)])
 
-    def _rise(self, spec, local, i_step, i_up):
+    def _rise(self, spec, local, i_step):
         """From the step to the end: the pelvis keeps the back knee on the floor until the rise,
         then rises over the front foot; the centre of mass is balanced over the support."""
-        t, n = self.t, len(self.t)
+        t = self.t
         root = spec.pelvis_pos
         # the stepping foot is placed by its targets; its knee stays a floor body until it lifts
         front = [B[f"{self.side}_{j}"] for j in ("Ankle", "Toe")]
-        rest_lateral = sum(OFFSETS[B[f"{self.side}_{j}"]][1] for j in ("Knee", "Ankle", "Toe"))
         # Until the rise: height and position from the floor contacts other than the front leg.
         for _ in range(3):
             z = self._floor_height(root, local, exclude=front)
@@ -439,7 +435,7 @@ class _Getup:
             self._solve_leg_from(spec, self.side, local, i_step)
         i_rise = self._index("rise")
         # From the rise on: both legs by IK, the pelvis lifted and balanced.
-        kneel_z = root[i_up, 2]
+        kneel_z = root[i_rise, 2]
         lift = _minjerk((t - self.keys["rise"]) / (self.keys["close"] - self.keys["rise"]))
         front_support = spec.legs[self.side].ball + quat_apply(
             yaw_quat(spec.legs[self.side].foot_yaw), FOOT_CENTRE[self.side])
@@ -463,13 +459,12 @@ class _Getup:
             root[i_rise:, 0] += (target - com)[i_rise:, 0]
             # Sideways the pelvis keeps the front hip in its foot's plane (the centre of mass
             # stays between the feet): a degree of abduction as the hip's flexion passes 90 deg
-            # would make its x-y-z hinges flip.
-            # Once the hip is well below 90 deg the centre of mass is balanced sideways too, over
-            # the front foot while the other steps.
-            hip = forward_kinematics(root, local, OFFSETS)[0][:, B[f"{self.side}_Hip"], 1]
-            com = centre_of_mass(*forward_kinematics(root, local, OFFSETS), SKELETON)[:, :2]
-            shift = align * (spec.legs[self.side].ball[:, 1] - rest_lateral - hip) + (1 - align) * (target - com)[:, 1]
-            root[i_rise:, 1] += shift[i_rise:]
+            # would make its x-y-z hinges flip. Once the hip is well below 90 deg the centre of
+            # mass is balanced sideways too, over the front foot while the other steps.
+            pos, quat = forward_kinematics(root, local, OFFSETS)
+            com = centre_of_mass(pos, quat, SKELETON)[:, :2]
+            in_plane = spec.legs[self.side].ball[:, 1] - self._rest_lateral() - pos[:, B[f"{self.side}_Hip"], 1]
+            root[i_rise:, 1] += (align * in_plane + (1 - align) * (target - com)[:, 1])[i_rise:]
         # the last move was horizontal: lower the pelvis where that took a foot out of reach
         reach = np.minimum(_max_pelvis_height(spec, self.side), _max_pelvis_height(spec, self.back))
         root[i_rise:, 2] = np.minimum(root[:, 2], reach - 0.01)[i_rise:]
@@ -478,6 +473,8 @@ class _Getup:
 
 
 def _smooth(x, radius: int):
+    """Gaussian smoothing, sigma radius / 2, truncated at the radius, edges repeated (the clip's
+    drawn parameters are tuned with exactly this one)."""
     taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / (radius / 2)) ** 2)
     return np.convolve(np.pad(x, radius, mode="edge"), taps / taps.sum(), mode="valid")
 

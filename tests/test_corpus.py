@@ -120,6 +120,15 @@ def test_a_family_loads_cached_with_its_manifest(tmp_path):
     np.testing.assert_array_equal(again.body_pos, lib.body_pos)
 
 
+def test_a_family_version_renews_only_the_caches_that_hold_it(monkeypatch):
+    keys = {spec: C.cache_key(spec, 0) for spec in ("corpus:train", "corpus:train+getup", "corpus:test/getup")}
+    getup = C.FAMILIES["getup"]
+    monkeypatch.setitem(C.FAMILIES, "getup", C.Family(**{**getup.__dict__, "version": getup.version + 1}))
+    assert C.cache_key("corpus:train", 0) == keys["corpus:train"]
+    assert C.cache_key("corpus:train+getup", 0) != keys["corpus:train+getup"]
+    assert C.cache_key("corpus:test/getup", 0) != keys["corpus:test/getup"]
+
+
 @pytest.mark.parametrize("env_id", ["SMPL/Imitation-v0", "SMPL/KeypointImitation-v0", "SMPL/VRTracking-v0"])
 def test_tasks_take_corpus_motions(env_id):
     env = gym.make_vec(env_id, num_envs=2, motions="corpus:test/side_step")

@@ -8,11 +8,14 @@ import pytest
 
 from smpl_envs.humanoid.kinematics import forward_kinematics
 from smpl_envs.humanoid.skeleton import BODY_NAMES, MEAN_SKELETON
-from smpl_envs.motion.getup import getup
+from smpl_envs.motion import getup as gu
+from smpl_envs.motion.getup import getup, phases
 from smpl_envs.motion.plausibility import check_motion
 from smpl_envs.rotations import quat_apply
 
 HEAD = BODY_NAMES.index("Head")
+KNEES = [BODY_NAMES.index(f"{s}_Knee") for s in "LR"]
+SHOULDERS = [BODY_NAMES.index(f"{s}_Shoulder") for s in "LR"]
 
 
 @pytest.mark.parametrize("start,side,roll", [("front", "L", "L"), ("front", "R", "L"), ("back", "L", "R"),
@@ -29,6 +32,34 @@ def test_a_getup_goes_from_the_floor_to_standing_and_is_plausible(start, side, r
     assert pos[-1, HEAD, 2] > 1.4 and up[-1, 2] > 0.99  # standing upright at the end
     still = np.linalg.norm(np.diff(raw.root_pos[-10:], axis=0), axis=-1) * raw.fps
     assert still.max() < 0.02  # and still, so the clip chains
+
+
+@pytest.mark.parametrize("start", ["front", "back"])
+def test_the_phases_tile_the_clip_in_order(start):
+    spans = phases(start, tempo=1.1)
+    names = list(spans)
+    assert names == [p for p in gu._PHASES if p in spans] and ("roll" in spans) == (start == "back")
+    assert all(a < b for a, b in spans.values())
+    assert all(spans[p][1] == spans[q][0] for p, q in zip(names, names[1:]))
+    assert names[0] == "lie" and spans["lie"][0] == 0
+    raw = getup(start, tempo=1.1)
+    assert raw.num_frames == round(spans[names[-1]][1] * raw.fps) + 1
+
+
+def test_pushing_onto_hands_and_knees_the_knees_slide_half_way(monkeypatch):
+    def travel(slide):  # how far the knees and the shoulders move over the push (xy)
+        monkeypatch.setattr(gu, "_KNEE_SLIDE", slide)
+        raw = getup("front")
+        pos, _ = forward_kinematics(raw.root_pos, raw.local_quat, MEAN_SKELETON.offsets)
+        a, b = (round(t * raw.fps) for t in phases("front")["push"])
+        return [pos[b, i, :2].mean(0) - pos[a, i, :2].mean(0) for i in (KNEES, SHOULDERS)]
+
+    knees0, shoulders0 = travel(0.0)
+    knees, shoulders = travel(gu._KNEE_SLIDE)
+    # pinned on the legs' contacts, the knees roll a few cm on the floor and the upper body moves the whole way
+    assert np.linalg.norm(knees0) < 0.08 and np.linalg.norm(shoulders0) > 0.3
+    np.testing.assert_allclose(shoulders, (1 - gu._KNEE_SLIDE) * shoulders0, atol=0.01)
+    np.testing.assert_allclose(knees - knees0, -gu._KNEE_SLIDE * shoulders0, atol=0.01)
 
 
 def test_a_getup_is_a_function_of_its_parameters():

@@ -42,7 +42,7 @@ from . import procedural as syn
 from . import upper_body as ub
 from . import whole_body as wb
 
-CORPUS_VERSION = 1  # bump when a generator or a range changes: with the clip counts, it keys the cache
+CORPUS_VERSION = 1  # bump when a generator or a range shared by the families changes; it keys the cache
 DEFAULT_SEED = 0
 SPLITS = ("train", "test")
 MAX_TRIES = 20
@@ -410,6 +410,7 @@ class Family:
     held_out: dict[str, tuple[float, float]] = field(default_factory=dict)
     description: str = ""
     default: bool = True  # part of "corpus:train" / "corpus:test" (else named explicitly)
+    version: int = 1  # bump when this family's generator or ranges change (keys the caches that hold it)
 
 
 FAMILIES: dict[str, Family] = {f.name: f for f in (
@@ -436,7 +437,8 @@ FAMILIES: dict[str, Family] = {f.name: f for f in (
            "walk, stop, reach / wave / turn, walk on"),
     # Appended last: a family's index seeds its clips, so the others' stay as they were.
     Family("getup", "recovery", getup, 60, 10, {"tempo": GETUP_TEMPO_BAND},
-           "from lying on the front or back to standing, by hands and knees and a half-kneel", default=False),
+           "from lying on the front or back to standing, by hands and knees and a half-kneel", default=False,
+           version=2),  # 2: the knees slide forward while pushing onto hands and knees
 )}
 GROUPS = tuple(dict.fromkeys(f.group for f in FAMILIES.values()))
 
@@ -540,7 +542,9 @@ def parse_seed(name: str) -> tuple[str, int]:
 
 def cache_key(spec: str, seed: int, scale: float = 1.0) -> str:
     split, families = parse(spec)
-    counts = [(f, getattr(FAMILIES[f], split)) for f in families]
+    # A family's own version enters the key only once bumped, so the corpora without it keep their caches.
+    counts = [(f, getattr(FAMILIES[f], split), *([FAMILIES[f].version] if FAMILIES[f].version > 1 else []))
+              for f in families]
     text = json.dumps([CORPUS_VERSION, int(seed), split, counts, float(scale)])
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 

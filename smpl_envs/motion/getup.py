@@ -9,7 +9,8 @@ runs). The clip is directed in phases, each a minimum-jerk blend between key pos
 * on the floor (lying, rolling, pushing back, on hands and knees) the legs and spine are hinge
   angles; the pelvis height puts the lowest point of the body (hands aside) on the floor, and its
   horizontal position keeps the body's contacts with the floor where they were (a body pushes
-  itself over its contacts, it does not slide on them);
+  itself over its contacts, it does not slide on them), except that pushing back onto hands and
+  knees the knees slide forward for half the way (`_KNEE_SLIDE`: what a simulated body does);
 * hands on the floor are placed by inverse kinematics on fixed floor points, blended with the
   free arm posture as they are put down and lifted;
 * from the moment the front foot is put down its leg is solved by the closed-form IK of
@@ -59,6 +60,12 @@ STARTS = ("front", "back")
 
 _FLOOR_BODIES = np.array([i for i in range(24) if i not in {B[f"{s}_{p}"] for s in SIDES
                                                             for p in ("Shoulder", "Elbow", "Wrist", "Hand")}])
+# Of the way the pelvis travels back over the knees while pushing onto hands and knees, the share
+# the knees slide forward instead (the shoulders move back by the rest). Pinned on the legs' contacts
+# alone, the upper body would make all of the 0.46 m, which a simulated body whose hands bear weight
+# cannot: PD-following the reference with no residual (benchmarks/getup_follow.py) lagged 0.2-0.3 m
+# on hands and knees with no sliding and 0.04-0.06 m with half (0.3: 0.07-0.10, 0.7: 0.14-0.17).
+_KNEE_SLIDE = 0.5
 _HAND_REST = 0.003  # m: how far above the floor the hand's lowest point is aimed (inside the contact band)
 _PHASES = ("lie", "roll", "hands", "push", "kneel", "step", "rise", "up", "close", "stand", "still", "end")
 _NEXT = dict(zip(_PHASES[:-1], _PHASES[1:]))
@@ -85,6 +92,19 @@ def getup(start: str = "back", side: str = "L", roll: str = "L", tempo: float = 
     onto the front from the back (ignored for "front"). The other parameters: `RANGES["getup"]`.
     About 7.5 s from the front and 9 s from the back at tempo 1.
     """
+    return _made(start, side, roll, tempo, hand_width, hand_ahead, lie, kneel).clip(name)
+
+
+def phases(start: str = "back", side: str = "L", roll: str = "L", tempo: float = 1.0,
+           hand_width: float = 0.18, hand_ahead: float = 0.02, lie: float = 0.8,
+           kneel: float = 0.3) -> dict[str, tuple[float, float]]:
+    """{phase: (start, end)} in seconds of the clip `getup` makes with these parameters, in
+    order, phases of no length left out ("roll" from the front)."""
+    keys = _made(start, side, roll, tempo, hand_width, hand_ahead, lie, kneel).keys
+    return {p: (keys[p], keys[_NEXT[p]]) for p in _PHASES[:-1] if keys[_NEXT[p]] > keys[p]}
+
+
+def _made(start, side, roll, tempo, hand_width, hand_ahead, lie, kneel) -> "_Getup":
     if start not in STARTS:
         raise ValueError(f"getup: start = {start!r} must be one of {STARTS}")
     for key, value in (("side", side), ("roll", roll)):
@@ -93,7 +113,7 @@ def getup(start: str = "back", side: str = "L", roll: str = "L", tempo: float = 
     tempo = _check("tempo", tempo)
     p = {k: _check(k, v) for k, v in (("hand_width", hand_width), ("hand_ahead", hand_ahead),
                                        ("lie", lie), ("kneel", kneel))}
-    return _Getup(start, side, roll, tempo, **p).clip(name)
+    return _Getup(start, side, roll, tempo, **p)
 
 
 class _Getup:
@@ -199,6 +219,7 @@ class _Getup:
         # Floor phases: height from the lowest point (hands aside), position pinned on contacts.
         root[:, 2] = self._floor_height(root, local) - _SINK
         root[:, :2] = self._pinned(root, local)
+        self._slide_knees(root, local)
 
         # The front foot: from the step on, planted where the step puts it; the back leg holds
         # its kneel (hinge angles) until the rise, then is solved by IK too.
@@ -263,6 +284,18 @@ class _Getup:
         moved = np.where(both, pts[1:, ..., :2] - pts[:-1, ..., :2], 0.0).sum((1, 2))
         delta = moved / np.maximum(both.sum((1, 2)), 1)  # no common contact: no correction
         return np.concatenate([np.zeros((1, 2)), -np.cumsum(delta, axis=0)])
+
+    def _slide_knees(self, root, local) -> None:
+        """While pushing onto hands and knees, move the body forward by `_KNEE_SLIDE` of the way
+        its shoulders travel back, so the knees slide under the hips for that share; the offset
+        holds from then on."""
+        body_pos, _ = forward_kinematics(root, local, OFFSETS)
+        shoulders = body_pos[:, [B["L_Shoulder"], B["R_Shoulder"]], :2].mean(1)
+        i0, i1 = self._index("push"), self._index("kneel")
+        w = _KNEE_SLIDE * self.curve([("push", 0.0), ("kneel", 1.0)])
+        shift = w[:, None] * (shoulders[i0] - shoulders)
+        shift[i1:] = shift[i1]
+        root[:, :2] += shift
 
     def _hand_targets(self, root, local):
         """Floor points of the hands: beside and a little ahead of where the shoulders are on

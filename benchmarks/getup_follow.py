@@ -1,0 +1,130 @@
+"""How far a simulated body follows the get-up clips (smpl_envs.motion.getup): the clips are
+kinematic, and this measures whether the humanoid can do them, phase by phase.
+
+    python benchmarks/getup_follow.py                          # PD on the reference alone
+    python benchmarks/getup_follow.py --checkpoint runs/tracker_getup
+
+Each clip is followed from its first frame (the body placed in the reference's lying pose) in
+SMPL/Imitation-v0 with no early termination, either by the zero residual action (the PD targets
+are the reference's joint angles: what the clip asks of the humanoid with no feedback at all) or
+by a trained imitation policy, deterministic, in the settings it was trained with. Per clip:
+
+- followed: frames until the mean body distance to the reference first exceeds `--threshold`
+  (0.5 m), of the clip's frames;
+- lost in: the phase of the clip at that frame (the generator's phases, from the clip's
+  parameters in the corpus manifest, or "-" when it is followed to the end);
+- d <phase>: the mean body distance (m) over each phase, while still followed.
+
+The table's last row gives the mean frames followed and the share followed to the end. The PD
+row is the reference's feasibility without a learnt correction: a phase PD loses at once is one a
+tracker must learn a balance for (the step onto one knee), or, where it is kinematically
+impossible for a body with its weight on its hands, one the generator should change (the knees
+sliding under the hips, `getup._KNEE_SLIDE`, came from here).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+import gymnasium as gym
+import numpy as np
+
+import smpl_envs  # noqa: F401 (registers the ids)
+from smpl_envs.motion import MotionLib
+from smpl_envs.motion import corpus as C
+from smpl_envs.motion import getup as gu
+from smpl_envs.motion.motion import FPS
+
+ENV_ID = "SMPL/Imitation-v0"
+
+
+def phase_frames(params: dict) -> dict[str, tuple[int, int]]:
+    """{phase: (first frame, end frame)} of the get-up drawn with `params` (its manifest record)."""
+    names = ("start", "side", "roll", *gu.RANGES["getup"])
+    return {p: (int(round(a * FPS)), int(round(b * FPS)))
+            for p, (a, b) in gu.phases(**{k: params[k] for k in names}).items()}
+
+
+def follow(lib: MotionLib, act, env_kwargs: dict, threshold: float) -> np.ndarray:
+    """(clips, frames) mean body distance to the reference, NaN past a clip's end."""
+    n, frames = lib.num_motions, int(lib.lengths.max())
+    env = gym.make_vec(ENV_ID, num_envs=n, motions=lib, termination_distance=None, autoreset_mode="Disabled",
+                       **env_kwargs)
+    try:
+        obs, info = env.reset(seed=0, options={"start": "beginning", "motion_ids": np.arange(n)})
+        dist = np.full((n, frames), np.nan)
+        for t in range(1, frames):
+            obs, _, _, _, info = env.step(act(obs))
+            d = np.linalg.norm(np.asarray(info["body_pos"]) - np.asarray(info["ref_body_pos"]), axis=-1).mean(-1)
+            dist[:, t] = np.where(t < lib.lengths, d, np.nan)
+    finally:
+        env.close()
+    return dist
+
+
+def report(lib: MotionLib, manifest: dict, dist: np.ndarray, threshold: float) -> list[dict]:
+    rows = []
+    for i, name in enumerate(lib.names):
+        spans = phase_frames(manifest[name])
+        length = int(lib.lengths[i])
+        over = np.flatnonzero(dist[i, :length] > threshold)
+        lost = int(over[0]) if len(over) else length
+        lost_in = "-" if lost == length else next((p for p, (a, b) in spans.items() if a <= lost < b), "end")
+        means = {p: float(np.nanmean(dist[i, a:min(b, lost)])) if a < lost else None for p, (a, b) in spans.items()}
+        rows.append({"clip": name, "start": manifest[name]["start"], "followed": lost, "frames": length,
+                     "lost_in": lost_in, "distance": means})
+    return rows
+
+
+def table(rows: list[dict], title: str) -> str:
+    seen = {p for r in rows for p in r["distance"]}
+    phases = [p for p in gu.phases("back") if p in seen]  # the back start has every phase, in order
+    head = f"{'clip':<18}{'start':<7}{'followed':>12}  {'lost in':<8}" + "".join(f"{'d ' + p:>9}" for p in phases)
+    lines = [title, head, "-" * len(head)]
+    for r in rows:
+        d = "".join(f"{r['distance'][p]:>9.2f}" if r["distance"].get(p) is not None else f"{'':>9}" for p in phases)
+        lines.append(f"{r['clip']:<18}{r['start']:<7}{r['followed']:>6}/{r['frames']:<5}  {r['lost_in']:<8}{d}")
+    full = np.mean([r["followed"] == r["frames"] for r in rows])
+    lines.append(f"mean frames followed {np.mean([r['followed'] for r in rows]):.0f}; "
+                 f"followed to the end {100 * full:.0f} %")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> list[dict]:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--motions", default="corpus:test/getup", help="a get-up corpus set (the manifest gives the phases)")
+    p.add_argument("--checkpoint", help="an imitation policy (file or run directory); default: the zero residual")
+    p.add_argument("--threshold", type=float, default=0.5, help="m of mean body distance that counts as lost")
+    p.add_argument("--out", help="JSON file for the rows")
+    args = p.parse_args(argv)
+    spec, seed = C.parse_seed(args.motions)
+    if C.parse(spec)[1] != ["getup"]:
+        raise SystemExit(f"--motions must name get-up clips only (e.g. corpus:test/getup), got {args.motions!r}")
+    raws, records = C.generate(spec, seed, progress=False)
+    lib = MotionLib(raws)
+    manifest = {r.name: r.params for r in records}
+    if args.checkpoint:
+        import agents
+        from smpl_envs.policy_settings import training_record, with_trained_settings
+
+        model = agents.load(args.checkpoint)
+        env_id, trained = training_record(model)
+        if env_id != ENV_ID:
+            raise SystemExit(f"{args.checkpoint} was trained on {env_id}, not {ENV_ID}")
+        kwargs = with_trained_settings(ENV_ID, trained, {})
+        act = lambda obs: model.predict(obs, deterministic=True)[0]  # noqa: E731
+        title = f"{args.checkpoint} on {args.motions}"
+    else:
+        kwargs = {"action_mode": "residual"}
+        act = lambda obs: np.zeros((len(obs), 69), np.float32)  # noqa: E731
+        title = f"PD on the reference (zero residual) on {args.motions}"
+    rows = report(lib, manifest, follow(lib, act, kwargs, args.threshold), args.threshold)
+    print(table(rows, title + f" (lost: mean body distance > {args.threshold} m)"))
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump({"title": title, "threshold": args.threshold, "rows": rows}, f, indent=1)
+    return rows
+
+
+if __name__ == "__main__":
+    main()

@@ -93,7 +93,8 @@ def table(rows: list[dict], title: str) -> str:
 def main(argv=None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--motions", default="corpus:test/getup", help="a get-up corpus set (the manifest gives the phases)")
-    p.add_argument("--checkpoint", help="an imitation policy (file or run directory); default: the zero residual")
+    p.add_argument("--checkpoint", help="an imitation policy: a .pt file, a run directory (its best.pt) or a "
+                                        "shipped name (tracker); default: the zero residual")
     p.add_argument("--threshold", type=float, default=0.5, help="m of mean body distance that counts as lost")
     p.add_argument("--out", help="JSON file for the rows")
     args = p.parse_args(argv)
@@ -105,9 +106,10 @@ def main(argv=None) -> list[dict]:
     manifest = {r.name: r.params for r in records}
     if args.checkpoint:
         import agents
+        from agents.recipes import find_checkpoint
         from smpl_envs.policy_settings import training_record, with_trained_settings
 
-        model = agents.load(args.checkpoint)
+        model = agents.load(find_checkpoint(args.checkpoint))
         env_id, trained = training_record(model)
         if env_id != ENV_ID:
             raise SystemExit(f"{args.checkpoint} was trained on {env_id}, not {ENV_ID}")

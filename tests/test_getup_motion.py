@@ -75,3 +75,37 @@ def test_a_getup_is_a_function_of_its_parameters():
 def test_bad_parameters_are_named(kwargs, match):
     with pytest.raises(ValueError, match=match):
         getup(**kwargs)
+
+
+def _getup_follow():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "benchmarks" / "getup_follow.py"
+    spec = importlib.util.spec_from_file_location("getup_follow", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_follow_benchmark_names_the_phase_a_clip_is_lost_in():
+    bench = _getup_follow()
+    params = {"start": "front", "side": "L", "roll": "R", "tempo": 1.0, "hand_width": 0.2, "hand_ahead": 0.0,
+              "lie": 0.5, "kneel": 0.4, "held_out": None}
+    spans = bench.phase_frames(params)
+    a, b = spans["step"]
+    lost = (a + b) // 2
+
+    class Lib:  # the two attributes the report reads
+        names, lengths = ["g"], np.array([spans["still"][1] + 1])
+
+    dist = np.full((1, int(Lib.lengths[0])), 0.1)
+    dist[0, lost:] = 0.7
+    (row,) = bench.report(Lib, {"g": params}, dist, threshold=0.5)
+    assert row["followed"] == lost and row["lost_in"] == "step"
+    assert row["distance"]["kneel"] == pytest.approx(0.1) and row["distance"]["rise"] is None
+    dist[0, lost:] = 0.1
+    (row,) = bench.report(Lib, {"g": params}, dist, threshold=0.5)
+    assert row["followed"] == row["frames"] and row["lost_in"] == "-"
+    with pytest.raises(SystemExit, match="get-up clips only"):
+        bench.main(["--motions", "corpus:test/walk"])

@@ -63,8 +63,8 @@ _FLOOR_BODIES = np.array([i for i in range(24) if i not in {B[f"{s}_{p}"] for s 
 # Of the way the pelvis travels back over the knees while pushing onto hands and knees, the share
 # the knees slide forward instead (the shoulders move back by the rest). Pinned on the legs' contacts
 # alone, the upper body would make all of the 0.46 m, which a simulated body whose hands bear weight
-# cannot: PD-following the reference with no residual (benchmarks/getup_follow.py) lagged 0.2-0.3 m
-# on hands and knees with no sliding and 0.04-0.06 m with half (0.3: 0.07-0.10, 0.7: 0.14-0.17).
+# cannot: PD on the reference with no residual (benchmarks/getup_follow.py) was 0.18-0.28 m off on
+# hands and knees with no sliding and 0.03-0.07 m with half (docs/corpus.md; 0.3 and 0.7 did worse).
 _KNEE_SLIDE = 0.5
 _HAND_REST = 0.003  # m: how far above the floor the hand's lowest point is aimed (inside the contact band)
 _PHASES = ("lie", "roll", "hands", "push", "kneel", "step", "rise", "up", "close", "stand", "still", "end")

@@ -210,6 +210,8 @@ class ImitationVecEnv(HumanoidVecEnv):
 
     def _advance(self, active):
         self.ref.advance(active)
+        if self.recovery is not None:
+            self.recovery.advance(active)
 
     def _evaluate(self, body, heading):
         ref = self.ref.current()
@@ -221,13 +223,17 @@ class ImitationVecEnv(HumanoidVecEnv):
         terminated = (self.backend.zeros(self.num_envs, "bool") if self.termination_distance is None
                       else imitation_terminated(body, ref, self.termination_distance))
         if self.recovery is not None:
-            return self.recovery.evaluate(body, ref, reward, terms, terminated, self.ref.at_end(), self.np_random)
+            guide = self.recovery.guide_reference()
+            guide_terms = None if guide is None else imitation_reward(
+                body, guide, self.sim.actuator_force, self.reward_weights, self.reward_scales, self.energy_weight)[1]
+            return self.recovery.evaluate(body, ref, reward, terms, terminated, self.ref.at_end(), self.np_random,
+                                          guide_terms)
         return reward, terms, terminated, self.ref.at_end()
 
     def _observe(self, body, heading):
         ref = self.ref.next()
         if self.recovery is not None:
-            ref = self.recovery.goal_reference(body, ref)
+            ref = self.recovery.goal_reference(body, ref, self.np_random)
         return tracking_obs(body, ref, self.goal, heading)
 
     def _task_info(self, body):
@@ -240,6 +246,8 @@ class ImitationVecEnv(HumanoidVecEnv):
         return info
 
     def _markers(self, world):
+        if self.recovery is not None and bool(self.recovery.guided[world]):  # the get-up it follows
+            return [(self.backend.to_numpy(self.recovery.guide_reference().pos[world]), MARKER_RGBA, 0.03)]
         return [(self.motion_lib.body_pos[int(self.ref.frame[world])], MARKER_RGBA, 0.03)]
 
     def set_recovery_starts(self, starts: dict) -> None:

@@ -13,8 +13,10 @@ from collections.abc import Mapping
 import numpy as np
 
 from ..features import BodyState, xp
+from ..motion.library import DeviceFrames, load_motions
 from .base import check_number, check_range
 from .fallen import FallenStates
+from .getup_guide import DOWN_HEIGHT, RESTART_DISTANCE, SETTLE_STEPS, GetupGuide
 
 START_KINDS = ("reference", "fallen", "far", "fallen+far")
 DEFAULT_STARTS = {"reference": 0.6, "fallen": 0.3, "far": 0.05, "fallen+far": 0.05}
@@ -81,6 +83,14 @@ def recovery_reference(sim: BodyState, ref: BodyState, far, clamp: float = CLAMP
     return BodyState(dof_pos=ref.dof_pos, dof_vel=ref.dof_vel, **out)
 
 
+def where_state(mask, a: BodyState, b: BodyState) -> BodyState:
+    """Per world, `a` where the (N,) mask is set, else `b`."""
+    m = xp(a.pos, b.pos)
+    pick = lambda x, y: m.where(mask.reshape(-1, *([1] * (x.ndim - 1))), x, y)  # noqa: E731
+    return BodyState(**{k: pick(getattr(a, k), getattr(b, k)) for k in ("pos", "rot", "lin_vel", "ang_vel", "dof_pos",
+                                                                        "dof_vel")})
+
+
 # ---------------------------------------------------------------------- per-world recovery state
 class RecoveryController:
     """The recovery state and rules of an imitation env's worlds (module docstring); the env
@@ -94,7 +104,7 @@ class RecoveryController:
     def __init__(self, env, *, starts=None, switch_distance=SWITCH_DISTANCE, clamp_distance=CLAMP_DISTANCE,
                  point_scale=POINT_SCALE, point_clip=POINT_CLIP, recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT,
                  grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
-                 fallen_cache_size=128, fallen_seed=0, recovery_action_base="reference"):
+                 fallen_cache_size=128, fallen_seed=0, recovery_action_base="reference", getup_guide=None):
         self.p = check_starts({"reference": 1.0} if starts is None else starts)
         if recovery_action_base not in ACTION_BASES:
             raise ValueError(f"recovery_action_base must be one of {ACTION_BASES}, got {recovery_action_base!r}")
@@ -121,6 +131,9 @@ class RecoveryController:
         self.root_distance = b.zeros(n)
         self.grace = b.zeros(n, "int")
         self.showing = b.zeros(n, "bool")    # the last observation's goal is in the recovery form
+        self.guide = None if getup_guide is None else _make_guide(getup_guide, env)
+        self.getup_guide = getup_guide
+        self.guided = b.zeros(n, "bool")     # the last observation's goal is a get-up (`getup_guide`)
         self.last_target = b.zeros((n, env.single_action_space.shape[0]))  # each world's last PD targets
 
     def set_starts(self, starts) -> None:
@@ -156,22 +169,31 @@ class RecoveryController:
             bearing = b.uniform(rng, m, 0.0, 2.0 * np.pi)
             q[far, :2] += b.asarray(r[:, None] * xp.stack([xp.cos(bearing), xp.sin(bearing)], -1))
         self.start_kind[ids] = kinds
+        if self.guide is not None:
+            self.guide.stop(ids)
+            self.guided[ids] = False
         self.last_target[ids] = q[:, 7:]  # "target" base: a start holds the pose it starts in
         self.grace[ids] = xp.where(kinds > 0, self.grace_steps, 0)
         d = q[:, :3] - ref_root
         self.root_distance[ids] = xp.sqrt((d * d).sum(-1))
         return qpos, qvel
 
-    def evaluate(self, body, ref, reward, terms, terminated, truncated, rng):
-        """Reward, terms, terminated and truncated of the recovery rules, from Imitation's."""
+    def evaluate(self, body, ref, reward, terms, terminated, truncated, rng, guide_terms=None):
+        """Reward, terms, terminated and truncated of the recovery rules, from Imitation's;
+        `guide_terms`: the imitation terms against the get-ups (`guide_reference`), which the
+        guided worlds get instead of the weighted ones."""
         b, xp = self.backend, self.backend.xp
         d = root_distance(body, ref)
         rec = d > self.switch_distance
         point = point_reward(self.root_distance, d, self.point_scale, self.point_clip)
         self.root_distance = d
-        if rec.any():
+        guided = self.guided if guide_terms is not None and bool(self.guided.any()) else None
+        if rec.any() or guided is not None:
             w = xp.where(rec, self.imitation_weight, 1.0)
             terms = {k: (v if k == "energy" else v * w) for k, v in terms.items()}
+            if guided is not None:
+                terms = {k: (xp.where(guided, guide_terms[k], v) if k != "energy" else v) for k, v in terms.items()}
+                rec = rec | guided  # no termination while a get-up plays
             terms["point"] = xp.where(rec, point, 0.0)
             reward = sum(terms.values())
         else:
@@ -187,11 +209,30 @@ class RecoveryController:
             truncated = xp.zeros_like(truncated)
         return reward, terms, terminated, truncated
 
-    def goal_reference(self, body, ref_next):
-        """The reference the observation shows (`recovery_reference` beyond switch_distance)."""
+    def goal_reference(self, body, ref_next, rng=None):
+        """The reference the observation shows (`recovery_reference` beyond switch_distance; with
+        `getup_guide`, a get-up for a body down, started here: `smpl_envs.envs.getup_guide`)."""
         far = root_distance(body, ref_next) > self.switch_distance
-        self.showing = far
-        return recovery_reference(body, ref_next, far, self.clamp_distance) if far.any() else ref_next
+        if self.guide is None:
+            self.showing = far
+            return recovery_reference(body, ref_next, far, self.clamp_distance) if far.any() else ref_next
+        g = self.guide
+        down = far & (body.pos[:, 0, 2] < DOWN_HEIGHT)
+        if down.any():
+            lost = g.active & (g.age >= SETTLE_STEPS) & (g.distance(body) > RESTART_DISTANCE)
+            g.start(down & (~g.active | lost), body, rng)
+        self.guided = self.backend.copy(g.active)
+        self.showing = far & ~self.guided
+        out = recovery_reference(body, ref_next, self.showing, self.clamp_distance) if self.showing.any() else ref_next
+        return where_state(self.guided, g.next(), out) if self.guided.any() else out
+
+    def guide_reference(self):
+        """The get-up frames the guided worlds' bodies should match now (None without a guide)."""
+        return None if self.guide is None else self.guide.current()
+
+    def advance(self, active=None) -> None:
+        if self.guide is not None:
+            self.guide.advance(active)
 
     def pd_targets(self, targets, actions, action_scale, action_mode: str, residual_scale: float, pose, ref_pose):
         """The PD targets of a step: Imitation's `targets`, except for residual actions of worlds
@@ -208,10 +249,32 @@ class RecoveryController:
                 base = pose if self.action_base == "pose" else self.last_target
             moved = (base + actions * span).clip(-action_scale, action_scale)
             targets = self.backend.xp.where(self.showing[:, None], moved, targets)
+        if self.guide is not None and action_mode == "residual" and bool(self.guided.any()):
+            # A get-up is tracked as a reference is, around the body's pose pulled toward its next
+            # frame by at most the residual range (near the get-up: its frame), a range that grows
+            # from 0 over the get-up's first second, so that a body lying in another pose is not
+            # yanked into the clip's by its PD gains (it leaves the floor).
+            span = residual_scale * action_scale
+            pull = span * self.guide.settled()[:, None]
+            base = pose + xp(pose).maximum(xp(pose).minimum(self.guide.next_dof_pos() - pose, pull), -pull)
+            follow = (base + actions * span).clip(-action_scale, action_scale)
+            targets = self.backend.xp.where(self.guided[:, None], follow, targets)
         self.last_target[:] = targets
         return targets
 
     def info(self) -> dict:
         copy = self.backend.copy
-        return {"recovering": self.root_distance > self.switch_distance, "root_distance": copy(self.root_distance),
+        info = {"recovering": self.root_distance > self.switch_distance, "root_distance": copy(self.root_distance),
                 "start_kind": copy(self.start_kind)}
+        if self.guide is not None:
+            info["guided"] = copy(self.guided)
+        return info
+
+
+def _make_guide(motions, env) -> GetupGuide:
+    try:
+        lib = load_motions(motions)
+    except (ValueError, FileNotFoundError) as e:
+        raise ValueError(f"getup_guide: {e}") from None
+    frames = lib if env.backend.name == "cpu" else DeviceFrames(lib, env.backend.device)
+    return GetupGuide(lib, frames, env.num_envs, env.backend)

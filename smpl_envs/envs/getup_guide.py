@@ -1,0 +1,131 @@
+"""A get-up shown as the goal while a body on the floor recovers: the recovery option
+`getup_guide` (Recovery-v0's kwarg, or a key of Imitation-v0's `recovery` dict; off by default).
+
+PHC's recovery goal is a point: a body on the floor sees the reference root and its own pose, and
+has to discover getting up from the reward (GPU-days with a style reward in the paper; 0 % here on
+2 cores, docs/results/learning.md). A tracker that has learnt the corpus' get-up family can
+already rise when a reference shows it how. With the guide, a world whose goal takes the recovery
+form while its body is down (pelvis below `DOWN_HEIGHT`) is shown a get-up clip instead, one that
+starts the way the body lies (on the front or the back: the sign of the pelvis' forward axis'
+height), turned about the vertical so that its head points where the body's head does, and
+placed under the body's pelvis. It plays at the control rate until its last frame (the body
+standing still); then the goal is the task's again: the reference within `switch_distance`, the
+recovery form beyond. A guided body that ends up more than `RESTART_DISTANCE` from its get-up
+while down, `SETTLE_STEPS` or more after the start, is shown a new one.
+
+While guided, the goal, the residual actions' base and the imitation terms of the reward are the
+get-up's (as when tracking); the episode does not terminate; the point reward towards the task's
+reference stays. Evaluation is unchanged: recovery is measured against the task's reference.
+
+Backends: the get-up clips are a MotionLib (DeviceFrames on MuJoCo Warp), the per-world state
+(clip frame, turn, offset) arrays of the env's backend.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..features import BodyState, xp
+from ..humanoid.skeleton import BODY_NAMES
+
+DOWN_HEIGHT = 0.4       # m: a pelvis lower than this is on the floor (hands and knees: 0.4)
+RESTART_DISTANCE = 0.6  # m of mean body distance from the get-up at which a body down starts again
+SETTLE_STEPS = 30       # steps after a start before a restart may come (the body settles into the lie)
+HEAD = BODY_NAMES.index("Head")
+
+
+def _flat_angle(v):
+    """Angle about z of horizontal vectors (N, 2)."""
+    return xp(v).arctan2(v[:, 1], v[:, 0])
+
+
+def turn(state: BodyState, cos, sin, offset) -> BodyState:
+    """`state` turned about the world z axis by the angles of (cos, sin) (N,) and moved by
+    `offset` (N, 3): positions, rotations and velocities (hinge angles are local)."""
+    m = xp(state.pos)
+    zero, one = m.zeros_like(cos), m.ones_like(cos)
+    r = m.stack([cos, -sin, zero, sin, cos, zero, zero, zero, one], -1).reshape(-1, 3, 3)
+    rt = r.swapaxes(-1, -2)  # row vectors (N, 24, 3) @ R^T, one matrix per world
+    return BodyState(pos=state.pos @ rt + offset[:, None], rot=r[:, None] @ state.rot,
+                     lin_vel=state.lin_vel @ rt, ang_vel=state.ang_vel @ rt,
+                     dof_pos=state.dof_pos, dof_vel=state.dof_vel)
+
+
+class GetupGuide:
+    """Per-world get-up clips for `num_worlds` worlds (module docstring). `lib` is the MotionLib of
+    the get-up clips (its `DeviceFrames` on a torch backend: `frames`)."""
+
+    def __init__(self, lib, frames, num_worlds: int, backend):
+        self.lib, self.frames, self.backend = lib, frames, backend
+        b = backend
+        first = lib.body_state(lib.starts)  # host arrays: each clip's first frame
+        prone = first.rot[:, 0, 2, 0] < 0   # the pelvis' forward axis points down: face down
+        if prone.all() or not prone.any():
+            have = "on the front" if prone.any() else "on the back"
+            raise ValueError(f"getup_guide: the get-up clips must start both on the front and on the back; "
+                             f"all {lib.num_motions} start {have}")
+        self._prone = b.asarray(np.flatnonzero(prone), "int")
+        self._supine = b.asarray(np.flatnonzero(~prone), "int")
+        self._clip_angle = b.asarray(_flat_angle(first.pos[:, HEAD, :2] - first.pos[:, 0, :2]))
+        self._clip_root = b.asarray(first.pos[:, 0])
+        self.active = b.zeros(num_worlds, "bool")
+        self.frame = b.zeros(num_worlds, "int")
+        self.end = b.zeros(num_worlds, "int")
+        self.age = b.zeros(num_worlds, "int")
+        self.cos, self.sin = b.zeros(num_worlds) + 1.0, b.zeros(num_worlds)
+        self.offset = b.zeros((num_worlds, 3))
+
+    def stop(self, ids) -> None:
+        self.active[ids] = False
+
+    def start(self, mask, body: BodyState, rng) -> None:
+        """Worlds in `mask` start a get-up matching how their `body` lies."""
+        b, m = self.backend, self.backend.xp
+        ids = b.nonzero(mask)
+        n = len(ids)
+        if n == 0:
+            return
+        prone = body.rot[ids, 0, 2, 0] < 0
+        clip = m.where(prone, self._prone[b.integers(rng, 0, len(self._prone), n)],
+                       self._supine[b.integers(rng, 0, len(self._supine), n)])
+        angle = _flat_angle(body.pos[ids, HEAD, :2] - body.pos[ids, 0, :2]) - self._clip_angle[clip]
+        c, s = m.cos(angle), m.sin(angle)
+        root = self._clip_root[clip]
+        turned = m.stack([c * root[:, 0] - s * root[:, 1], s * root[:, 0] + c * root[:, 1]], -1)
+        self.offset[ids, :2] = body.pos[ids, 0, :2] - turned
+        self.offset[ids, 2] = 0.0  # the clip lies on the floor already
+        self.cos[ids], self.sin[ids] = c, s
+        self.frame[ids] = self.frames.starts[clip]
+        self.end[ids] = self.frames.starts[clip] + self.frames.lengths[clip] - 1
+        self.age[ids] = 0
+        self.active[ids] = True
+
+    def advance(self, active=None) -> None:
+        """One frame on for the guided worlds (of the mask `active`); a get-up whose last frame
+        was shown ends."""
+        step = self.active if active is None else self.active & active
+        done = step & (self.frame >= self.end)
+        self.frame[step] = self.backend.xp.minimum(self.frame[step] + 1, self.end[step])
+        self.age[step] += 1
+        self.active &= ~done
+
+    def settled(self):
+        """(N,) how far each get-up is into its first SETTLE_STEPS steps, 0 to 1."""
+        return (self.age * (1.0 / SETTLE_STEPS)).clip(max=1.0)
+
+    def distance(self, body: BodyState):
+        """(N,) mean body distance (m) between `body` and each world's get-up frame now."""
+        d = self.current().pos - body.pos
+        return xp(d).sqrt((d * d).sum(-1)).mean(-1)
+
+    def _at(self, frames) -> BodyState:
+        return turn(self.frames.body_state(frames), self.cos, self.sin, self.offset)
+
+    def current(self) -> BodyState:
+        return self._at(self.frame)
+
+    def next(self) -> BodyState:
+        return self._at(self.backend.xp.minimum(self.frame + 1, self.end))
+
+    def next_dof_pos(self):
+        return self.frames.dof_pos[self.backend.xp.minimum(self.frame + 1, self.end)]

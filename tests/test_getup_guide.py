@@ -1,0 +1,142 @@
+"""The recovery option `getup_guide` (smpl_envs.envs.getup_guide): a body down is shown a get-up
+that starts the way it lies, turned and placed where it lies; the goal, the residual base and the
+imitation terms are the get-up's while it plays; it ends at the clip's last frame; bad clip sets
+are named; the MuJoCo Warp backend runs it in torch."""
+
+import importlib.util
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import smpl_envs  # noqa: F401 (registers the ids)
+from smpl_envs.envs.getup_guide import HEAD, SETTLE_STEPS, turn
+from smpl_envs.envs.imitation import imitation_reward
+from smpl_envs.envs.recovery import RecoveryVecEnv
+from smpl_envs.features import BodyState, rotmat_from_quat
+from smpl_envs.motion import MotionLib
+from smpl_envs.motion.getup import getup
+from smpl_envs.rotations import quat_from_euler_xyz
+
+
+@pytest.fixture(scope="module")
+def guide_clips():
+    # one get-up from the front and one from the back, at the fastest tempo: short clips
+    return MotionLib([getup("front", tempo=1.3, lie=0.3, kneel=0.1, name="front"),
+                      getup("back", tempo=1.3, lie=0.3, kneel=0.1, name="back")])
+
+
+def _env(guide, n=2, **kwargs):
+    return gym.make_vec("SMPL/Recovery-v0", num_envs=n, getup_guide=guide, action_mode="residual",
+                        fallen_cache_size=16, **{"starts": {"fallen": 1.0}, **kwargs})
+
+
+def _heading(pos):
+    d = pos[:, HEAD, :2] - pos[:, 0, :2]
+    return np.arctan2(d[:, 1], d[:, 0])
+
+
+def test_turn_is_a_rigid_motion_about_the_vertical():
+    rng = np.random.default_rng(0)
+    n = 3
+    rot = rotmat_from_quat(quat_from_euler_xyz(rng.uniform(-1, 1, (n, 24, 3))))
+    s = BodyState(pos=rng.normal(size=(n, 24, 3)), rot=rot, lin_vel=rng.normal(size=(n, 24, 3)),
+                  ang_vel=rng.normal(size=(n, 24, 3)), dof_pos=rng.normal(size=(n, 69)), dof_vel=rng.normal(size=(n, 69)))
+    a = rng.uniform(-np.pi, np.pi, n)
+    off = rng.normal(size=(n, 3))
+    t = turn(s, np.cos(a), np.sin(a), off)
+    pair = lambda x: np.linalg.norm(x[:, 3] - x[:, 7], axis=-1)  # noqa: E731
+    np.testing.assert_allclose(pair(t.pos), pair(s.pos))  # distances kept
+    np.testing.assert_allclose(t.pos[..., 2] - off[:, None, 2], s.pos[..., 2])  # heights kept
+    expected = np.arctan2(s.pos[:, 5, 1], s.pos[:, 5, 0]) + a
+    got = np.arctan2(t.pos[:, 5, 1] - off[:, 1], t.pos[:, 5, 0] - off[:, 0])
+    np.testing.assert_allclose(np.angle(np.exp(1j * (got - expected))), 0, atol=1e-9)  # turned by a
+    np.testing.assert_allclose(t.rot @ s.rot.swapaxes(-1, -2), t.rot[:, :1] @ s.rot[:, :1].swapaxes(-1, -2)
+                               .repeat(24, 1), atol=1e-9)  # one rotation for every body
+    np.testing.assert_allclose(np.linalg.norm(t.lin_vel, axis=-1), np.linalg.norm(s.lin_vel, axis=-1))
+    assert t.dof_pos is s.dof_pos
+
+
+def test_a_body_down_is_shown_a_getup_that_starts_as_it_lies(guide_clips):
+    env = _env(guide_clips, n=6)
+    u = env.unwrapped
+    obs, info = env.reset(seed=3)
+    assert info["guided"].all()
+    g, body = u.recovery.guide, u.sim.bodies
+    shown = g.current()
+    prone = body.rot[:, 0, 2, 0] < 0
+    clip = np.searchsorted(guide_clips.starts, g.frame, side="right") - 1
+    assert (clip == np.where(prone, 0, 1)).all()  # front-down bodies get the clip from the front
+    np.testing.assert_allclose(shown.pos[:, 0, :2], body.pos[:, 0, :2], atol=1e-9)  # under the pelvis
+    turned = np.angle(np.exp(1j * (_heading(shown.pos) - _heading(body.pos))))
+    np.testing.assert_allclose(turned, 0, atol=1e-9)  # the head where the body's head is
+    # The goal shows the get-up's next frame, not the recovery form's "keep as you are".
+    o2, _ = _env(None, n=6).reset(seed=3)
+    assert np.abs(obs - o2).max() > 0.1 and np.abs(obs[:, :358] - o2[:, :358]).max() < 1e-6
+    env.close()
+
+
+def test_while_guided_the_reward_and_the_residual_base_are_the_getups(guide_clips):
+    env = _env(guide_clips)
+    u = env.unwrapped
+    env.reset(seed=0)
+    pose = u.sim.qpos[:, u.humanoid.dof_qpos].copy()
+    # At the start the pull toward the get-up is 0: the zero action holds the body's own pose.
+    targets = u._ctrl(np.zeros((2, 69)))
+    np.testing.assert_allclose(targets, np.clip(pose, -u.action_scale, u.action_scale), atol=1e-9)
+    for _ in range(SETTLE_STEPS + 2):
+        _, reward, term, _, info = env.step(np.zeros((2, 69), np.float32))
+    assert info["guided"].all() and not term.any()
+    _, terms = imitation_reward(u.sim.bodies, u.recovery.guide.current(), u.sim.actuator_force,
+                                u.reward_weights, u.reward_scales, u.energy_weight)
+    np.testing.assert_allclose(info["reward_pos"], terms["pos"], atol=1e-6)  # against the get-up, unweighted
+    # Settled, the zero action's PD targets are the get-up's next frame where it is within range.
+    pose = u.sim.qpos[:, u.humanoid.dof_qpos]
+    want = u.recovery.guide.next_dof_pos()
+    span = u.residual_scale * u.action_scale
+    expected = np.clip(pose + np.clip(want - pose, -span, span), -u.action_scale, u.action_scale)
+    np.testing.assert_allclose(u._ctrl(np.zeros((2, 69))), expected, atol=1e-9)
+    env.close()
+
+
+def test_a_getup_plays_to_its_last_frame_and_a_body_still_down_starts_another(guide_clips):
+    env = _env(guide_clips, n=1, max_episode_steps=1000)
+    u = env.unwrapped
+    env.reset(seed=0)
+    g = u.recovery.guide
+    start, end = int(g.frame[0]), int(g.end[0])
+    frames = []
+    for _ in range(end - start + 1):
+        g.age[:] = 0  # no restart on the way (a body lost from its get-up starts again after SETTLE_STEPS)
+        env.step(np.zeros((1, 69), np.float32))
+        frames.append(int(g.frame[0]))
+    assert frames[:end - start] == list(range(start + 1, end + 1))  # one frame a step, to the last
+    # the last frame shown, the get-up ended; the body (PD alone: still down) was given a new one
+    assert frames[-1] in guide_clips.starts.tolist() and bool(g.active[0])
+
+
+def test_bad_getup_guides_are_named(guide_clips):
+    only_front = MotionLib([getup("front", tempo=1.3, name="a"), getup("front", tempo=1.2, name="b")])
+    with pytest.raises(ValueError, match="getup_guide: the get-up clips must start both on the front and on the back"):
+        _env(only_front)
+    with pytest.raises(ValueError, match="getup_guide"):
+        _env("no_such_clip_anywhere")
+    assert "getup_guide" in RecoveryVecEnv.policy_kwargs  # what the goal shows: a policy setting
+
+
+@pytest.mark.skipif(importlib.util.find_spec("mujoco_warp") is None, reason="MuJoCo Warp is not installed")
+def test_the_guide_on_the_warp_backend_stays_in_torch(guide_clips):
+    import torch
+
+    env = gym.make_vec("SMPL/Recovery-v0", num_envs=2, getup_guide=guide_clips, action_mode="residual",
+                       fallen_cache_size=16, starts={"fallen": 1.0}, backend="warp", device="cpu")
+    u = env.unwrapped
+    obs, info = env.reset(seed=0)
+    assert isinstance(info["guided"], torch.Tensor) and info["guided"].all()
+    body = u.sim.bodies
+    torch.testing.assert_close(u.recovery.guide.current().pos[:, 0, :2], body.pos[:, 0, :2], atol=1e-5, rtol=0)
+    for _ in range(5):
+        obs, reward, term, trunc, info = env.step(torch.zeros(2, 69))
+    assert torch.isfinite(obs).all() and isinstance(reward, torch.Tensor) and info["guided"].all()
+    assert u.recovery.guide.frame.device == obs.device
+    env.close()

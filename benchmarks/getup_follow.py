@@ -45,7 +45,7 @@ def phase_frames(params: dict) -> dict[str, tuple[int, int]]:
             for p, (a, b) in gu.phases(**{k: params[k] for k in names}).items()}
 
 
-def follow(lib: MotionLib, act, env_kwargs: dict, threshold: float) -> np.ndarray:
+def follow(lib: MotionLib, act, env_kwargs: dict) -> np.ndarray:
     """(clips, frames) mean body distance to the reference, NaN past a clip's end."""
     n, frames = lib.num_motions, int(lib.lengths.max())
     env = gym.make_vec(ENV_ID, num_envs=n, motions=lib, termination_distance=None, autoreset_mode="Disabled",
@@ -120,7 +120,7 @@ def main(argv=None) -> list[dict]:
         kwargs = {"action_mode": "residual"}
         act = lambda obs: np.zeros((len(obs), 69), np.float32)  # noqa: E731
         title = f"PD on the reference (zero residual) on {args.motions}"
-    rows = report(lib, manifest, follow(lib, act, kwargs, args.threshold), args.threshold)
+    rows = report(lib, manifest, follow(lib, act, kwargs), args.threshold)
     print(table(rows, title + f" (lost: mean body distance > {args.threshold} m)"))
     if args.out:
         with open(args.out, "w") as f:

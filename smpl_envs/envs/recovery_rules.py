@@ -187,7 +187,7 @@ class RecoveryController:
         rec = d > self.switch_distance
         point = point_reward(self.root_distance, d, self.point_scale, self.point_clip)
         self.root_distance = d
-        guided = self.guided if guide_terms is not None and bool(self.guided.any()) else None
+        guided = None if guide_terms is None else self.guided
         if rec.any() or guided is not None:
             w = xp.where(rec, self.imitation_weight, 1.0)
             terms = {k: (v if k == "energy" else v * w) for k, v in terms.items()}
@@ -227,8 +227,9 @@ class RecoveryController:
         return where_state(self.guided, g.next(), out) if self.guided.any() else out
 
     def guide_reference(self):
-        """The get-up frames the guided worlds' bodies should match now (None without a guide)."""
-        return None if self.guide is None else self.guide.current()
+        """The get-up frames the guided worlds' bodies should match now; None when no world is
+        guided (no guide, or none shown), so the reward's extra terms are computed only then."""
+        return None if self.guide is None or not bool(self.guided.any()) else self.guide.current()
 
     def advance(self, active=None) -> None:
         if self.guide is not None:
@@ -256,7 +257,7 @@ class RecoveryController:
             # yanked into the clip's by its PD gains (it leaves the floor).
             span = residual_scale * action_scale
             pull = span * self.guide.settled()[:, None]
-            base = pose + xp(pose).maximum(xp(pose).minimum(self.guide.next_dof_pos() - pose, pull), -pull)
+            base = pose + (self.guide.next_dof_pos() - pose).clip(-pull, pull)
             follow = (base + actions * span).clip(-action_scale, action_scale)
             targets = self.backend.xp.where(self.guided[:, None], follow, targets)
         self.last_target[:] = targets

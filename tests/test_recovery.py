@@ -334,6 +334,10 @@ def test_baselines_example_runs():
     out = subprocess.run([sys.executable, str(script), "--trials", "1", "--num-envs", "1", "--fallen-cache-size", "16"],
                          capture_output=True, text=True, timeout=300, check=True).stdout
     assert "zero, residual" in out and "fallen+far 10s" in out and out.count("%") == 18
+    guided = subprocess.run([sys.executable, str(script), "--trials", "1", "--num-envs", "1", "--fallen-cache-size", "16",
+                             "--getup-guide", "corpus:test/getup"], capture_output=True, text=True, timeout=300,
+                            check=True).stdout
+    assert "zero, residual, guided" in guided and guided.count("%") == 24
 
 
 def test_protocol_measures_from_the_trial_start_to_its_end():

@@ -30,8 +30,18 @@ With `iterations=0` the policy is the same actor-critic on the unrefined estimat
 "no refinement" ablation).
 
 Observation normalisation: the columns the unit reads (estimate root and angles, keypoints,
-confidences, camera) pass through raw, so the rollout's stored observations still hold them; the
-rest is normalised with running statistics, as `ActorCritic` does.
+confidences, camera) pass through `normalize` raw, so the rollout's stored observations still hold
+them; the rest is normalised with running statistics, as `ActorCritic` does. The actor and the
+critic read every column normalised (`features`).
+
+Warm start from the tracker (`init_from`, `agent.init: tracker` in the recipe): VideoPose-v0's
+observation begins with Imitation-v0's (the estimate as the reference), and its residual actions
+mean what the tracker's mean, so the tracker's actor and critic become this policy's, with zero
+weight on the inputs the tracker never had and zero outputs for meta-PD and the root force. At
+step 0 the policy then acts exactly as the tracker following the estimate (plus the refinement's
+offset): it starts out balancing instead of learning to stand from nothing, which the suite's
+from-scratch run had not begun to do after 1.4M samples (docs/tasks/videopose.md). SimPoE trains
+from scratch with far more samples; this is PHC's reuse of the imitator.
 """
 from __future__ import annotations
 
@@ -59,6 +69,9 @@ OBS_DIM = max(s.stop for s in OBS.values())
 # The columns the refinement reads (kept raw by `normalize`).
 RAW_COLUMNS = ("estimate/ref_pos", "estimate/ref_rot", "video/est_dof", "video/keypoints", "video/confidence",
                "video/camera_rot", "video/camera_pos")
+# Imitation-v0's observation: the first columns of VideoPose-v0's (its own state, the estimate as the
+# reference); what a warm start from an imitation policy maps onto.
+IMITATION_OBS = slice(0, OBS["estimate/ref_rot"].stop)
 GRAD_FEATURE_SCALE = 100.0  # dL/dX is ~1e-2 per joint; the MLPs see it near unit scale
 STEP_FEATURE_SCALE = 10.0
 # Damped Gauss-Newton: on 256 start frames of corpus:test at the default noise, 5 updates with
@@ -261,6 +274,13 @@ class KinematicRefinement(ValueCritic, Policy):
     def update_obs_stats(self, obs: torch.Tensor) -> None:
         self.obs_norm.update(obs)
 
+    def features(self, nobs: torch.Tensor) -> torch.Tensor:
+        """Every column normalised: what the actor and the critic read (the raw ones too)."""
+        return torch.where(self._raw, self.obs_norm(nobs), nobs)
+
+    def critic_input(self, nobs: torch.Tensor) -> torch.Tensor:
+        return self.features(nobs)
+
     def refined(self, nobs: torch.Tensor):
         """(refined angles (B, 69), estimated angles (B, 69), dL/dX (B, 24, 3), loss before,
         loss after) of `normalize`d (or raw) observations."""
@@ -270,7 +290,7 @@ class KinematicRefinement(ValueCritic, Policy):
 
     def distribution(self, nobs: torch.Tensor) -> Normal:
         angles, est, grad, _, _ = self.refined(nobs)
-        feat = torch.cat([nobs, angles, GRAD_FEATURE_SCALE * grad.reshape(len(nobs), -1)], -1)
+        feat = torch.cat([self.features(nobs), angles, GRAD_FEATURE_SCALE * grad.reshape(len(nobs), -1)], -1)
         mu = self.actor(feat)
         offset = (angles - est) / self._residual_unit
         mu = torch.cat([mu[:, :NUM_HINGES] + offset, mu[:, NUM_HINGES:]], -1)
@@ -284,6 +304,56 @@ class KinematicRefinement(ValueCritic, Policy):
 
     def action_std(self) -> torch.Tensor:
         return self.log_std.detach().exp()
+
+    # --- warm start (agents.warm_start)
+    @torch.no_grad()
+    def init_from(self, source_class: type, state: dict, exclude: Sequence[str] = ()) -> tuple[list[str], list[str]]:
+        """Start from an imitation `ActorCritic` (module docstring), its layer sizes and activation
+        this policy's. Returns (copied, kept) names of this policy's state dict; a ValueError says
+        what does not fit."""
+        from .policies import ActorCritic
+
+        if source_class is not ActorCritic:
+            raise ValueError(f"KinematicRefinement starts from an imitation ActorCritic (the tracker), not a "
+                             f"{source_class.__name__}")
+        n = IMITATION_OBS.stop
+        if tuple(state["obs_norm.mean"].shape) != (n,):
+            raise ValueError(f"the source policy reads {tuple(state['obs_norm.mean'].shape)[0]} observation numbers; "
+                             f"an SMPL/Imitation-v0 policy in rotation form reads {n}")
+        skip = lambda name: any(name.startswith(p) for p in exclude)  # noqa: E731
+        copied = []
+        for net in ("actor", "critic"):
+            if skip(net + "."):
+                continue
+            layers = [i for i, m in enumerate(getattr(self, net)) if isinstance(m, nn.Linear)]
+            for k, i in enumerate(layers):
+                w, b = state[f"{net}.{i}.weight"].float(), state[f"{net}.{i}.bias"].float()
+                lin = getattr(self, net)[i]
+                last = k == len(layers) - 1
+                # the last layer's first rows: the 69 residual targets (the critic: its value)
+                rows = w.shape[0] if last else lin.out_features
+                cols = n if k == 0 else lin.in_features
+                if w.shape[1] != cols or w.shape[0] != rows or rows > lin.out_features:
+                    raise ValueError(f"{net} layer {k} is {tuple(w.shape)} in the source, this policy's is "
+                                     f"{tuple(lin.weight.shape)}: make {net}_hidden the source's")
+                lin.weight.zero_()
+                lin.bias.zero_()
+                lin.weight[:rows, :cols] = w[:rows]
+                lin.bias[:rows] = b[:rows]
+                copied += [f"{net}.{i}.weight", f"{net}.{i}.bias"]
+        if not skip("obs_norm"):
+            self.obs_norm.mean[:n] = state["obs_norm.mean"]
+            self.obs_norm.var[:n] = state["obs_norm.var"]
+            self.obs_norm.count.copy_(state["obs_norm.count"])
+            copied += ["obs_norm.mean", "obs_norm.var", "obs_norm.count"]
+        if self.value_norm is not None and "value_norm.mean" in state and not skip("value_norm"):
+            for k in ("mean", "var", "count"):
+                getattr(self.value_norm, k).copy_(state[f"value_norm.{k}"])
+                copied.append(f"value_norm.{k}")
+        if not skip("log_std"):
+            self.log_std[:NUM_HINGES] = state["log_std"][:NUM_HINGES]
+            copied.append("log_std")
+        return copied, [k for k in self.state_dict() if k not in copied]
 
     # --- supervised regression of the refinement
     def refinement_error(self, obs: torch.Tensor, truth_angles: torch.Tensor) -> torch.Tensor:

@@ -22,7 +22,11 @@ What is copied, and why:
 * Not copied: the optimiser's moments, the step count, the episode statistics and the RNG state.
   The run is a new run (its learning-rate schedule starts over).
 
-Refused, with the parameter named: another policy class, a tensor the new policy lacks or has
+A policy of another class is mapped only by a policy that says how (an `init_from(source_class,
+state, exclude)` method returning the copied and kept names): SimPoE's `KinematicRefinement` takes
+the tracker's `ActorCritic`, whose observation is the first part of its own.
+
+Refused, with the parameter named: another policy class (unless mapped as above), a tensor the new policy lacks or has
 that the source lacks (an architecture change), a tensor of another shape (other layer sizes or
 another observation size), and env settings that give the copied actions another meaning
 (`smpl_envs.policy_settings`: action_mode, residual_scale, substeps ...; compared where both
@@ -71,11 +75,18 @@ def init_policy(agent, path: str | os.PathLike, exclude: Iterable[str] = ()) -> 
         source_class = policy_class(ckpt.get("policy_class", "ActorCritic"))
     except PolicyClassError as e:
         raise ValueError(f"--init {path}: {e}") from None
-    if source_class is not type(policy):
+    adopt = getattr(policy, "init_from", None)
+    if source_class is not type(policy) and adopt is None:
         raise ValueError(f"--init {path}: it holds a {class_name(source_class)} policy, this run makes a "
                          f"{class_name(type(policy))}; a warm start copies a policy of the same class")
     _check_settings(path, ckpt.get("env") or {}, agent.env_id, agent.env_kwargs)
     exclude = tuple(exclude)
+    if source_class is not type(policy):  # the policy maps another class's weights onto its own
+        try:
+            copied, kept = adopt(source_class, ckpt["policy"], exclude)
+        except ValueError as e:
+            raise ValueError(f"--init {path}: {e}") from None
+        return {"checkpoint": str(path), "copied": copied, "kept": kept}
     skip = lambda name: any(name.startswith(p) for p in exclude)  # noqa: E731
     source, target = ckpt["policy"], policy.state_dict()
     missing = [k for k in target if k not in source and not skip(k)]

@@ -431,9 +431,56 @@ def test_no_refinement_acts_on_the_estimate_and_the_raw_columns_stay_raw(video_o
     for name in ("video/keypoints", "video/camera_rot", "estimate/ref_rot"):
         assert torch.equal(nobs[:, OBS[name]], obs[:, OBS[name]])
     assert not torch.allclose(nobs[:, OBS["self/body_lin_vel"]], obs[:, OBS["self/body_lin_vel"]])
+    # the actor and the critic read every column normalised, the raw ones too
+    feat = pol.features(nobs)
+    np.testing.assert_allclose(feat, pol.obs_norm(obs), atol=1e-6)
     with torch.no_grad():
-        feat = torch.cat([nobs, est, 100.0 * pol.refined(nobs)[2].reshape(len(obs), -1)], -1)
+        feat = torch.cat([feat, est, 100.0 * pol.refined(nobs)[2].reshape(len(obs), -1)], -1)
         np.testing.assert_allclose(pol.distribution(nobs).mean, pol.actor(feat), atol=1e-6)
+        np.testing.assert_allclose(pol.critic_output(nobs), pol.critic(pol.obs_norm(obs)).squeeze(-1), atol=1e-6)
+
+
+def test_a_warm_start_from_the_tracker_acts_as_the_tracker_on_the_estimate(video_obs):
+    from agents import SimPoEPPO, load
+    from agents.recipes import find_checkpoint
+    from agents.simpoe import IMITATION_OBS, KinematicRefinement
+    from agents.warm_start import init_policy
+
+    obs = video_obs[0].numpy()
+    tracker_path = find_checkpoint("tracker")
+    tracker = load(tracker_path)
+
+    def make(**policy_kwargs):
+        return SimPoEPPO(ID, n_envs=2, env_kwargs={"motions": ["walk"], "meta_pd": True}, verbose=0,
+                         tensorboard=False, device="cpu", policy_kwargs={"iterations": 0, **policy_kwargs})
+
+    model = make()
+    out = init_policy(model, tracker_path)
+    assert "actor.0.weight" in out["copied"] and "obs_norm.mean" in out["copied"]
+    act = model.predict(obs, deterministic=True)[0]
+    assert act.shape == (len(obs), 69 + 2 * 4)  # + meta-PD's kp and kd scales per substep
+    np.testing.assert_allclose(act[:, :69], tracker.predict(obs[:, IMITATION_OBS], deterministic=True)[0], atol=1e-5)
+    assert np.all(act[:, 69:] == 0)  # nominal gains
+    np.testing.assert_allclose(model.policy.value(model.policy.normalize(torch.as_tensor(obs))).detach(),
+                               tracker.policy.value(tracker.policy.normalize(torch.as_tensor(obs[:, IMITATION_OBS])))
+                               .detach(), rtol=1e-4, atol=1e-4)
+    # With refinement the tracker's action moves by the refinement's offset only.
+    refining = make(iterations=2)
+    init_policy(refining, tracker_path)
+    pol = refining.policy
+    nobs = pol.normalize(torch.as_tensor(obs))
+    with torch.no_grad():
+        angles, est, *_ = pol.refined(nobs)
+        offset = ((angles - est) / pol._residual_unit).numpy()
+    np.testing.assert_allclose(refining.predict(obs, deterministic=True)[0][:, :69] - offset,
+                               act[:, :69], atol=1e-4)
+    with pytest.raises(ValueError, match=r"actor layer 0 is \(512, 934\) in the source, this policy's is "
+                                         r"\(32, 1228\): make actor_hidden the source's"):
+        init_policy(make(actor_hidden=[32]), tracker_path)
+    with pytest.raises(ValueError, match="starts from an imitation ActorCritic"):
+        model.policy.init_from(KinematicRefinement, model.policy.state_dict())
+    for m in (model, refining):
+        m.close()
 
 
 def test_supervised_pretraining_lowers_the_refinement_error():

@@ -15,7 +15,12 @@ by a trained imitation policy, deterministic, in the settings it was trained wit
   parameters in the corpus manifest, or "-" when it is followed to the end);
 - d <phase>: the mean body distance (m) over each phase, while still followed.
 
-The table's last row gives the mean frames followed and the share followed to the end. The PD
+A second table is the reference's own: per phase, the smallest margin of its zero-moment point
+inside the hull of its floor contacts (`plausibility.zmp_margin`; m, negative: outside) and the
+frames it spends outside. A phase the ZMP leaves the hull for several frames asks for a balance
+no body has, and PD, a tracker, or anything imitating it closely falls there.
+
+The first table's last row gives the mean frames followed and the share followed to the end. The PD
 row is the reference's feasibility without a learnt correction: a phase PD loses at once is one a
 tracker must learn a balance for (the step onto one knee), or, where it is kinematically
 impossible for a body with its weight on its hands, one the generator should change (the knees
@@ -34,6 +39,7 @@ from smpl_envs.motion import MotionLib
 from smpl_envs.motion import corpus as C
 from smpl_envs.motion import getup as gu
 from smpl_envs.motion.motion import FPS
+from smpl_envs.motion.plausibility import zmp_margin
 
 ENV_ID = "SMPL/Imitation-v0"
 
@@ -90,6 +96,24 @@ def table(rows: list[dict], title: str) -> str:
     return "\n".join(lines)
 
 
+def zmp_table(raws, manifest: dict) -> str:
+    """The references' ZMP margins per phase (module docstring)."""
+    phases = list(gu.phases("back"))
+    head = f"{'clip':<18}{'start':<7}" + "".join(f"{p:>13}" for p in phases)
+    lines = ["reference: smallest ZMP margin in the contacts' hull per phase, m (frames outside)", head, "-" * len(head)]
+    for raw in raws:
+        margin, spans = zmp_margin(raw), phase_frames(manifest[raw.name])
+        cells = []
+        for p in phases:
+            if p not in spans:
+                cells.append(f"{'':>13}")
+                continue
+            m = margin[slice(*spans[p])]
+            cells.append(f"{np.nanmin(m):>+8.2f} ({int((m < 0).sum()):>2})")
+        lines.append(f"{raw.name:<18}{manifest[raw.name]['start']:<7}" + "".join(cells))
+    return "\n".join(lines)
+
+
 def main(argv=None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--motions", default="corpus:test/getup", help="a get-up corpus set (the manifest gives the phases)")
@@ -122,6 +146,8 @@ def main(argv=None) -> list[dict]:
         title = f"PD on the reference (zero residual) on {args.motions}"
     rows = report(lib, manifest, follow(lib, act, kwargs), args.threshold)
     print(table(rows, title + f" (lost: mean body distance > {args.threshold} m)"))
+    print()
+    print(zmp_table(raws, manifest))
     if args.out:
         with open(args.out, "w") as f:
             json.dump({"title": title, "threshold": args.threshold, "rows": rows}, f, indent=1)

@@ -13,8 +13,8 @@ from smpl_envs.humanoid.kinematics import forward_kinematics
 from smpl_envs.humanoid.skeleton import BODY_NAMES, MEAN_SKELETON
 from smpl_envs.motion.loaders import read_motion_file
 from smpl_envs.motion.plausibility import (
-    FEET, FLIGHT_ACC_TOLERANCE, GRAVITY, MAX_SLIDE_SPEED, SUPPORT_MARGIN, check_motion,
-    support_points_world,
+    FEET, FLIGHT_ACC_TOLERANCE, GRAVITY, MAX_SLIDE_SPEED, SUPPORT_MARGIN, centre_of_mass, check_motion,
+    support_points_world, zmp_margin,
 )
 from smpl_envs.motion import procedural as syn
 from smpl_envs.motion.synthetic import CLIP_NAMES, CLIPS_DIR
@@ -150,6 +150,24 @@ def test_centre_of_mass_outside_the_support(shift, fails):
     assert report.quasi_static.all()
     assert report.failed == ({"balance"} if fails else set()), str(report)
     assert (report.support_margin < -SUPPORT_MARGIN) == fails
+
+
+def test_the_zero_moment_point_of_a_still_and_an_accelerating_body():
+    stand = shipped("stand")
+    still = edited(stand, root_pos=np.repeat(stand.root_pos[:1], 60, 0), local_quat=np.repeat(stand.local_quat[:1], 60, 0))
+    static = zmp_margin(still)
+    assert static.shape == (60,) and np.allclose(static, static[0]) and 0.02 < static[0] < 0.2
+    assert static[0] == pytest.approx(check_motion(still).support_margin, abs=1e-9)  # at rest: the CoM's margin
+    # The same pose pushed forward at a constant 2 m/s^2 (feet and all): the ZMP trails the centre
+    # of mass by its height x a / g, so it leaves the feet behind.
+    t = np.arange(60) / 30
+    moving = edited(still, root_pos=still.root_pos + np.stack([t * t, 0 * t, 0 * t], -1))
+    pos, quat = forward_kinematics(still.root_pos[:1], still.local_quat[:1], MEAN_SKELETON.offsets)
+    lag = centre_of_mass(pos, quat, MEAN_SKELETON)[0, 2] * 2.0 / GRAVITY
+    inner = zmp_margin(moving)[5:-5]  # away from the ends' one-sided differences
+    assert np.all(inner < 0) and np.all(inner < static[0] - 0.5 * lag)
+    # Off the floor there is no hull.
+    assert np.isnan(zmp_margin(edited(still, root_pos=still.root_pos + [0, 0, 0.1]))).all()
 
 
 def test_a_ninety_degree_jump_in_one_frame():

@@ -31,6 +31,13 @@ readable list of violations. The tolerances are module constants:
   to gimbal lock with some rotation about the missing axis makes the x-y-z decomposition flip),
   and no body moves faster than MAX_BODY_SPEED (12 m/s).
 
+`zmp_margin(raw)` is a measure, not a check: per frame, how far the zero-moment point of the
+centre of mass (its floor projection shifted by inertia, c - c_z c'' / (g + c_z''); a point mass,
+angular momentum ignored) lies inside the contacts' hull. A motion whose ZMP leaves the hull for
+long cannot be done as drawn (the body tips over the hull's edge), however slowly it moves; the
+static balance check above sees only the slow frames. `benchmarks/getup_follow.py` reports it
+per phase of the get-ups.
+
 The clip is checked where it is (not grounded first: a clip sunk into the floor must fail) and
 resampled to 30 fps, as `Motion.from_raw` does, so per-frame figures mean the same for every clip.
 """
@@ -285,6 +292,31 @@ def _damped_step(jac, r, damping: float = 1e-4):
     return np.linalg.solve(jt @ jac + damping * np.eye(3), (jt @ r[..., None]))[..., 0]
 
 
+def zmp_margin(raw: RawMotion, skeleton: Skeleton = MEAN_SKELETON) -> np.ndarray:
+    """(T,) signed distance (m) of the zero-moment point inside the convex hull of the contacting
+    support points per frame of `raw` at 30 fps (module docstring; negative: outside, NaN: no
+    contact)."""
+    raw = raw.resampled(FPS)
+    body_pos, body_quat = forward_kinematics(raw.root_pos, raw.local_quat, skeleton.offsets)
+    points, reach = support_points_world(body_pos, body_quat, skeleton)
+    touching = points[..., 2] - reach < CONTACT_HEIGHT
+    com = centre_of_mass(body_pos, body_quat, skeleton)
+    acc = np.gradient(np.gradient(com, 1 / raw.fps, axis=0), 1 / raw.fps, axis=0) if len(com) > 2 else 0 * com
+    zmp = com[:, :2] - com[:, 2:] * acc[:, :2] / (GRAVITY + acc[:, 2:])
+    t = len(com)
+    margin = _hull_margin(zmp, points.reshape(t, -1, 3)[..., :2], touching.reshape(t, -1))
+    return np.where(touching.reshape(t, -1).any(1), margin, np.nan)
+
+
+def _hull_margin(xy, pts, touch):
+    """(F,) signed distance of the points xy (F, 2) inside the convex hull of those of pts (F, N, 2)
+    where touch (F, N) is set; -inf for a frame with none."""
+    # Support function of the hull, h(u) = max over contacts of u . p: the signed distance of a
+    # point c inside a convex polygon is min over u of h(u) - u . c (minus the distance outside).
+    proj = np.where(touch[..., None], pts @ _DIRECTIONS.T, -np.inf)  # (F, N, D)
+    return (proj.max(axis=1) - xy @ _DIRECTIONS.T).min(axis=1)
+
+
 def _static_balance(com, points, touching, flight, fps):
     """Quasi-static frames and the smallest signed distance (m) of the centre of mass' floor
     projection inside the convex hull of the contacting support points (negative: outside)."""
@@ -300,12 +332,7 @@ def _static_balance(com, points, touching, flight, fps):
     pts = points[quasi].reshape(int(quasi.sum()), -1, 3)
     touch = touching[quasi].reshape(len(pts), -1)  # every frame on the ground has a contact
     ever = touch.any(axis=0)  # a few dozen points (the soles) of the ~200: a small product below
-    pts, touch = pts[:, ever, :2], touch[:, ever]
-    # Support function of the contact hull, h(u) = max over contacts of u . p: the signed distance
-    # of a point c inside a convex polygon is min over u of h(u) - u . c (minus the distance outside).
-    proj = np.where(touch[..., None], pts @ _DIRECTIONS.T, -np.inf)  # (Q, N, D)
-    margin = (proj.max(axis=1) - com[quasi] @ _DIRECTIONS.T).min(axis=1)
-    return quasi, float(margin.min())
+    return quasi, float(_hull_margin(com[quasi], pts[:, ever, :2], touch[:, ever]).min())
 
 
 def _joint_steps(local_quat):

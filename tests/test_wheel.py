@@ -71,7 +71,7 @@ def test_the_wheel_holds_the_recipes_policies_and_clips(installed):
         assert Path(path).resolve().is_relative_to(site.resolve()), (path, "not the installed wheel")
     shipped = sorted(p.name for p in (ROOT / "tasks").glob("*.yaml"))
     assert sorted(p.name for p in Path(lines[2]).glob("*.yaml")) == shipped
-    assert lines[3] == "clips,walk"
+    assert lines[3] == ",".join(sorted(p.stem for p in (ROOT / "agents" / "pretrained").glob("*.pt")))
     assert {"walk", "run", "jump", "stand"} <= set(lines[4].split(","))
 
 

@@ -26,11 +26,11 @@ A policy of another class is mapped only by a policy that says how (an `init_fro
 state, exclude)` method returning the copied and kept names): SimPoE's `KinematicRefinement` takes
 the tracker's `ActorCritic`, whose observation is the first part of its own.
 
-Refused, with the parameter named: another policy class (unless mapped as above), a tensor the new policy lacks or has
-that the source lacks (an architecture change), a tensor of another shape (other layer sizes or
-another observation size), and env settings that give the copied actions another meaning
-(`smpl_envs.policy_settings`: action_mode, residual_scale, substeps ...; compared where both
-tasks have the setting, so a tracker may start a recovery run).
+Refused, with the parameter named: another policy class (unless mapped as above), a tensor the
+new policy lacks or has that the source lacks (an architecture change), a tensor of another shape
+(other layer sizes or another observation size), and env settings that give the copied actions
+another meaning (`smpl_envs.policy_settings`: action_mode, residual_scale, substeps ...; compared
+where both tasks have the setting, so a tracker may start a recovery run).
 """
 from __future__ import annotations
 

@@ -141,6 +141,33 @@ def test_hinge_angles_are_continuous():
     assert np.abs(np.diff(m.dof_pos, axis=0)).max() < 1.0  # no 2*pi wraps between frames
 
 
+
+def test_hinge_angles_keep_their_decomposition_through_a_tie():
+    # The left arm held forward at shoulder height, jittering by half a degree: its two x-y-z
+    # decompositions, about (-90, 0, -90) and (90, 180, 90) deg, tie under the |x| + |z| rule,
+    # which alone takes a different one from frame to frame (a half-turn jump every frame).
+    from smpl_envs.motion.kinematics import Segments, hinge_angles
+    from smpl_envs.rotations import quat_from_euler_xyz
+    from smpl_envs.humanoid.skeleton import BODY_NAMES, HINGE_NAMES
+    body, n = BODY_NAMES.index("L_Shoulder"), 40
+    cols = slice(HINGE_NAMES.index("L_Shoulder_x"), HINGE_NAMES.index("L_Shoulder_z") + 1)
+    jitter = np.radians(0.5) * (-1.0) ** np.arange(n)
+    euler = np.zeros((2 * n, 24, 3))
+    euler[:n, body] = np.stack([-np.pi / 2 + jitter, np.zeros(n), -np.pi / 2 + jitter], -1)
+    euler[n:, body] = euler[:n, body][::-1]  # a second clip: the same, played backwards
+    local = quat_from_euler_xyz(euler)
+    per_frame = hinge_angles(local)[:, cols]
+    assert np.abs(np.diff(per_frame[:n], axis=0)).max() > np.radians(170)  # the rule alone flips
+    seg = Segments.from_lengths([n, n])
+    kept = hinge_angles(local, seg)[:, cols]
+    for clip in (kept[:n], kept[n:]):
+        assert np.abs(np.diff(clip, axis=0)).max() < np.radians(2)
+        np.testing.assert_allclose(np.abs(clip[:, [0, 2]]), np.pi / 2, atol=np.radians(1))
+    # both decompositions compose to the same rotations
+    from smpl_envs.rotations import quat_to_matrix
+    rebuilt = quat_from_euler_xyz(kept.reshape(2 * n, 1, 3))[:, 0]
+    np.testing.assert_allclose(quat_to_matrix(rebuilt), quat_to_matrix(local[:, body]), atol=1e-9)
+
 # ---------------------------------------------------------------- bad input
 def _amass(path, **override):
     data = dict(poses=np.zeros((10, 156)), trans=np.zeros((10, 3)), mocap_framerate=120.0,

@@ -16,19 +16,58 @@ import numpy as np
 from ..rotations import quat_inv, quat_mul, quat_to_euler_xyz, quat_to_rotvec
 
 
-def hinge_angles(local_quat: np.ndarray) -> np.ndarray:
+def hinge_angles(local_quat: np.ndarray, seg: "Segments | None" = None) -> np.ndarray:
     """(..., 69) hinge angles whose x-y-z composition reproduces each non-root local rotation.
 
     Every rotation has two x-y-z decompositions, (x, y, z) with |y| <= pi/2 and
     (x + pi, pi - y, z + pi). A knee or hip bent past 90 degrees is the second one with small x
     and z; the first would spin x and z by half a turn. Take whichever has the smaller |x| + |z|.
+
+    With `seg` (local_quat of shape (F, 24, 4), clips concatenated along frames) a joint keeps the
+    decomposition it has on the previous frame where switching would jump: an arm held forward
+    at shoulder height is (x, y, z) ~ (90, 0, 90) deg or (-90, 180, -90) deg, a tie that the rule
+    alone breaks differently from frame to frame, while the joint itself moves smoothly.
     """
     a = quat_to_euler_xyz(local_quat[..., 1:, :])
-    wrap = lambda v: (v + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
-    b = np.stack([wrap(a[..., 0] + np.pi), wrap(np.pi - a[..., 1]), wrap(a[..., 2] + np.pi)], -1)
+    b = np.stack([_wrap(a[..., 0] + np.pi), _wrap(np.pi - a[..., 1]), _wrap(a[..., 2] + np.pi)], -1)
     cost = lambda e: np.abs(e[..., 0]) + np.abs(e[..., 2])  # noqa: E731
-    angles = np.where((cost(b) < cost(a))[..., None], b, a)
+    pick_b = cost(b) < cost(a)
+    if seg is not None:
+        pick_b ^= _keep_decomposition(a, b, pick_b, seg)
+    angles = np.where(pick_b[..., None], b, a)
     return angles.reshape(*local_quat.shape[:-2], -1)
+
+
+def _wrap(v):
+    return (v + np.pi) % (2 * np.pi) - np.pi
+
+
+def _keep_decomposition(a, b, pick_b, seg: "Segments") -> np.ndarray:
+    """(F, J) bool: where to take the other decomposition than `pick_b` so that no joint changes
+    decomposition between frames when keeping it is the smaller step. Greedy over the frames
+    where the rule's choice changes (there are few), each deciding until the next one."""
+    change = np.zeros_like(pick_b)
+    change[1:] = pick_b[1:] != pick_b[:-1]
+    change[seg.starts] = False
+    flip = np.zeros_like(pick_b)
+    if not change.any():
+        return flip
+    step = lambda x, y: np.abs(_wrap(x - y)).max(-1)  # noqa: E731
+    clip, last = seg.clip_of_frame, seg.last
+    frames, joints = np.nonzero(change.T)[::-1]  # sorted by joint, then frame
+    upto = np.append(frames[1:], 0)
+    same_column = np.append((joints[1:] == joints[:-1]) & (clip[frames[1:]] == clip[frames[:-1]]), False)
+    upto = np.where(same_column, upto, last[frames] + 1)
+    parity = False
+    for k, (t, j) in enumerate(zip(frames, joints)):
+        if k == 0 or not (joints[k - 1] == j and clip[frames[k - 1]] == clip[t]):
+            parity = False  # a new joint or clip starts with the rule's choice
+        before = (b if pick_b[t - 1, j] ^ parity else a)[t - 1, j]
+        same = (b if pick_b[t - 1, j] ^ parity else a)[t, j]
+        other = (a if pick_b[t - 1, j] ^ parity else b)[t, j]
+        parity = (parity ^ True) if step(same, before) < step(other, before) else parity
+        flip[t:upto[k], j] = parity
+    return flip
 
 
 @dataclass(frozen=True)

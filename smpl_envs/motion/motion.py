@@ -101,7 +101,7 @@ def derive_fields(
     dt = 1.0 / fps
     lin_vel = smooth(time_derivative(body_pos, seg, dt), seg, sigma)
     ang_vel = smooth(angular_velocity(body_quat, seg, dt), seg, sigma)
-    dof_pos = unwrap(hinge_angles(local_quat), seg)
+    dof_pos = unwrap(hinge_angles(local_quat, seg), seg)
     dof_vel = smooth(time_derivative(dof_pos, seg, dt), seg, sigma)
     root_quat = body_quat[:, 0]
     # MuJoCo's free joint: linear velocity in the world frame, angular velocity in the body frame.

@@ -188,7 +188,8 @@ def check_motion(raw: RawMotion, skeleton: Skeleton = MEAN_SKELETON, allow_fligh
         violations.append(f"flight: not ballistic, pelvis z'' off -g by up to {acc_err:.2f} m/s^2, "
                           f"|xy''| up to {acc_xy:.2f} m/s^2")
 
-    dof = unwrap(hinge_angles(raw.local_quat), Segments.from_lengths([n]))  # as Motion.dof_pos
+    seg = Segments.from_lengths([n])
+    dof = unwrap(hinge_angles(raw.local_quat, seg), seg)  # as Motion.dof_pos
     excess, worst, distance = _limit_excess(raw.local_quat, dof)
     if distance > LIMIT_MARGIN:
         violations.append(f"joint range: a joint is {np.degrees(distance):.1f} deg (rotation) from its "

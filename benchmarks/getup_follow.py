@@ -22,9 +22,10 @@ no body has, and PD, a tracker, or anything imitating it closely falls there.
 
 The first table's last row gives the mean frames followed and the share followed to the end. The PD
 row is the reference's feasibility without a learnt correction: a phase PD loses at once is one a
-tracker must learn a balance for (the step onto one knee), or, where it is kinematically
-impossible for a body with its weight on its hands, one the generator should change (the knees
-sliding under the hips, `getup._KNEE_SLIDE`, came from here).
+tracker must learn a balance for (the weight shifted back over the feet in the crouch), or, where
+it is kinematically impossible for a body with its weight on its hands, one the generator should
+change (the knees sliding under the hips, `getup._KNEE_SLIDE`, and the bear-stance rise that
+replaced a lunge whose ZMP left the hull came from here).
 """
 from __future__ import annotations
 

@@ -93,7 +93,7 @@ def test_the_follow_benchmark_names_the_phase_a_clip_is_lost_in():
     params = {"start": "front", "side": "L", "roll": "R", "tempo": 1.0, "hand_width": 0.2, "hand_ahead": 0.0,
               "lie": 0.5, "kneel": 0.4, "held_out": None}
     spans = bench.phase_frames(params)
-    a, b = spans["step"]
+    a, b = spans["foot_1"]
     lost = (a + b) // 2
 
     class Lib:  # the two attributes the report reads
@@ -102,8 +102,8 @@ def test_the_follow_benchmark_names_the_phase_a_clip_is_lost_in():
     dist = np.full((1, int(Lib.lengths[0])), 0.1)
     dist[0, lost:] = 0.7
     (row,) = bench.report(Lib, {"g": params}, dist, threshold=0.5)
-    assert row["followed"] == lost and row["lost_in"] == "step"
-    assert row["distance"]["kneel"] == pytest.approx(0.1) and row["distance"]["rise"] is None
+    assert row["followed"] == lost and row["lost_in"] == "foot_1"
+    assert row["distance"]["kneel"] == pytest.approx(0.1) and row["distance"]["lift"] is None
     dist[0, lost:] = 0.1
     (row,) = bench.report(Lib, {"g": params}, dist, threshold=0.5)
     assert row["followed"] == row["frames"] and row["lost_in"] == "-"

@@ -437,8 +437,8 @@ FAMILIES: dict[str, Family] = {f.name: f for f in (
            "walk, stop, reach / wave / turn, walk on"),
     # Appended last: a family's index seeds its clips, so the others' stay as they were.
     Family("getup", "recovery", getup, 60, 10, {"tempo": GETUP_TEMPO_BAND},
-           "from lying on the front or back to standing, by hands and knees and a half-kneel", default=False,
-           version=2),  # 2: the knees slide forward while pushing onto hands and knees
+           "from lying on the front or back to standing, by hands and knees, a bear stance and a crouch",
+           default=False, version=3),  # 2: the knees slide on the push; 3: the bear-stance rise
 )}
 GROUPS = tuple(dict.fromkeys(f.group for f in FAMILIES.values()))
 

@@ -1,6 +1,7 @@
-"""Getting up from the floor: from lying on the front or the back to standing, the way most people
-do it (roll onto the front, push back onto hands and knees, bring one foot forward between the
-hands, push up into a half-kneel, rise over the front foot and step the other foot beside it).
+"""Getting up from the floor: from lying on the front or the back to standing, the way many
+people do it (roll onto the front, push back onto hands and knees, tuck the toes and lift the knees
+into a bear stance, walk the feet in towards the hands one after the other, shift the weight back
+over the feet, lift the hands and stand up).
 
 The corpus has no other motion that starts on the floor, so without this family a tracker, and
 everything distilled from it, has never seen a body rise (docs/results/learning.md, the recovery
@@ -13,19 +14,28 @@ runs). The clip is directed in phases, each a minimum-jerk blend between key pos
   knees the knees slide forward for half the way (`_KNEE_SLIDE`: what a simulated body does);
 * hands on the floor are placed by inverse kinematics on fixed floor points, blended with the
   free arm posture as they are put down and lifted;
-* from the moment the front foot is put down its leg is solved by the closed-form IK of
-  `procedural`, foot flat and still; while rising the other leg is too, and the pelvis moves so
-  that the centre of mass stays over the support.
+* from the bear stance on, both legs are solved by the closed-form IK of `procedural`: the balls
+  of the feet stay where they are put down, and while the hands are down the pelvis follows its
+  key heights; from the crouch on it moves so that the centre of mass comes over the feet before
+  the hands lift.
 
-Every clip passes `check_motion` as it is drawn for the corpus (about 19 in 20 parameter draws do;
-the corpus redraws the others). Two choices make that so: the knees stay under the hips on hands
-and knees, and the pelvis keeps the front hip in its foot's plane while its flexion passes
-90 deg, since the humanoid's x-y-z hip hinges are in gimbal lock there and any abduction makes
-them flip; and bodies on the floor rest `_SINK` deep in it.
+The rise used to be a lunge (one foot stepped forward between the hands, then up over it). Its
+zero-moment point left the contacts' hull by 0.15-0.34 m for 11-12 frames in every test clip
+(`plausibility.zmp_margin`, `benchmarks/getup_follow.py`), and that is where PD on the reference
+lost it: no body can do it slowly. This rise keeps hands and feet on the floor until the centre of
+mass is over the feet. Its key postures (`_PELVIS_PITCH`, `_SPINE_LEAN`, `_PELVIS_HEIGHT`, `_FEET`)
+came from a search that kept the zero-moment point inside the hull and every hinge inside its
+anatomical range over several parameter draws (docs/corpus.md has the figures).
+
+Every clip passes `check_motion` as it is drawn for the corpus (the corpus redraws the few that
+do not). Three choices make that so: the knees stay under the hips on hands and knees; the feet
+keep the pelvis' heading while the hips flex past 90 deg, since the humanoid's x-y-z hip hinges are
+in gimbal lock there and any twist or abduction makes them flip; and bodies on the floor rest
+`_SINK` deep in it.
 
 `getup(...)` is a pure, deterministic function of its parameters; `RANGES["getup"]` holds them.
-The clip ends standing still, feet 0.2 m apart, so it chains with the other families. Frames,
-axes and signs are procedural's: x forward, y left, z up.
+The clip ends standing still, feet about hip width apart, so it chains with the other families.
+Frames, axes and signs are procedural's: x forward, y left, z up.
 """
 
 from __future__ import annotations
@@ -67,16 +77,31 @@ _FLOOR_BODIES = np.array([i for i in range(24) if i not in {B[f"{s}_{p}"] for s 
 # hands and knees with no sliding and 0.03-0.07 m with half (docs/corpus.md; 0.3 and 0.7 did worse).
 _KNEE_SLIDE = 0.5
 _HAND_REST = 0.003  # m: how far above the floor the hand's lowest point is aimed (inside the contact band)
-_PHASES = ("lie", "roll", "hands", "push", "kneel", "step", "rise", "up", "close", "stand", "still", "end")
+_PHASES = ("lie", "roll", "hands", "push", "kneel", "bear", "foot_1", "foot_2", "crouch", "lift", "up", "stand",
+           "still", "end")
 _NEXT = dict(zip(_PHASES[:-1], _PHASES[1:]))
 # m: bodies on the floor rest this deep in it, as soft tissue and MuJoCo's soft contacts do: a
 # capsule body otherwise rests on its one lowest point, and a few mm decide which limb that is.
 _SINK = 0.004
-_STAND_WIDTH = 0.1  # m: the standing pose's toe joints either side of the centre line
-_LIMITS = anatomical_limits()  # (69, 2) rad
-_LANDING_AHEAD = 0.03  # m: the stepping foot's toe joint ahead of its hip on hands and knees
-_LANDING_HEEL = 20 * DEG  # the stepping foot's heel raised as it lands
-_BALL_PITCH = 50 * DEG  # the back foot's heel raised while the body rises over the front one
+# The rise's key postures, each reached at the start of its phase (degrees, metres). foot_1 and
+# foot_2 are the phases in which the `side` foot, then the other, walks in towards the hands.
+_PELVIS_PITCH = (("lie", 90), ("push", 90), ("bear", 88), ("foot_1", 87), ("foot_2", 79),
+                 ("crouch", 72), ("lift", 28), ("up", 19), ("stand", 0))
+_SPINE_LEAN = (("lie", -4), ("push", -4), ("kneel", 6), ("bear", 6), ("foot_1", 7), ("foot_2", 17),
+               ("crouch", 28), ("lift", 36), ("up", 3), ("stand", 0))
+# pelvis heights from the bear stance on (the knees leave the floor), capped by the legs' reach
+_PELVIS_HEIGHT = (("foot_1", 0.543), ("foot_2", 0.543), ("crouch", 0.485), ("lift", 0.43),
+                  ("up", 0.614), ("stand", 2.0))
+_FEET = dict(
+    behind=0.486,  # where the feet walk to: this far behind the hands' midpoint,
+    width=0.116,  # and this far either side of it (toe joints)
+    swing=0.019,  # how high a foot is lifted walking in
+    ball_pitch=52 * DEG,  # the heel raised on the balls of the feet, in the bear stance
+    heel_land=28 * DEG,  # ... as a foot lands (then flattened in the crouch)
+)
+_OVER_FEET = 0.92  # share of the crouch by which the centre of mass is over the feet
+_DURATIONS = (("hands", 0.7), ("push", 1.3), ("bear", 0.9), ("foot_1", 0.8), ("foot_2", 0.8), ("crouch", 1.0),
+              ("lift", 0.9), ("up", 1.2), ("stand", 0.6))  # s at tempo 1 (lie, kneel and still: parameters)
 
 
 def _check(name: str, value) -> float:
@@ -88,9 +113,9 @@ def getup(start: str = "back", side: str = "L", roll: str = "L", tempo: float = 
           lie: float = 0.8, kneel: float = 0.3, name: str = "getup") -> RawMotion:
     """Lying on the `start` ("front": face down, "back": face up), getting up to standing.
 
-    side: the leg ("L" / "R") that steps forward between the hands. roll: the side rolled over
+    side: the leg ("L" / "R") whose foot walks in first. roll: the side rolled over
     onto the front from the back (ignored for "front"). The other parameters: `RANGES["getup"]`.
-    About 7.5 s from the front and 9 s from the back at tempo 1.
+    About 9.5 s from the front and 11 s from the back at tempo 1.
     """
     return _made(start, side, roll, tempo, hand_width, hand_ahead, lie, kneel).clip(name)
 
@@ -122,9 +147,8 @@ class _Getup:
     def __init__(self, start, side, roll, tempo, hand_width, hand_ahead, lie, kneel):
         self.side, self.back = side, ("R" if side == "L" else "L")
         self.hand_width, self.hand_ahead = hand_width, hand_ahead
-        durations = [("lie", lie), ("roll", 1.4 if start == "back" else 0.0), ("hands", 0.7),
-                     ("push", 1.3), ("kneel", kneel), ("step", 1.0), ("rise", 1.2), ("up", 1.1),
-                     ("close", 0.8), ("stand", 0.8), ("still", 0.5)]
+        durations = [("lie", lie), ("roll", 1.4 if start == "back" else 0.0), *_DURATIONS[:2], ("kneel", kneel),
+                     *_DURATIONS[2:], ("still", 0.5)]
         self.keys, t = {}, 0.0
         for phase, d in durations:
             self.keys[phase] = t
@@ -133,7 +157,7 @@ class _Getup:
         self.t = np.arange(int(round(t * FPS)) + 1) / FPS
         self.start, self.roll_sign = start, SIDES[roll]
 
-    def curve(self, keys: list[tuple[str, float]]) -> np.ndarray:
+    def curve(self, keys) -> np.ndarray:
         """Minimum-jerk curve through (phase, value) keys, each reached at that phase's start;
         held before the first and after the last."""
         times = np.array([self.keys[p] if isinstance(p, str) else self.keys[p[0]] + p[1] * (
@@ -148,11 +172,9 @@ class _Getup:
         """Per-frame pelvis orientation and hinge angles of the floor phases."""
         t, c = self.t, self.curve
         n = len(t)
-        # The pelvis tips up as the front thigh comes forward (hip flexion is pitch plus the
-        # thigh's elevation and stops at 140 deg); the spine keeps the chest low while the
-        # hands bear weight.
-        pitch = c([("lie", 90 * DEG), ("push", 90 * DEG), ("step", 88 * DEG), ("rise", 62 * DEG),
-                   (("rise", 0.45), 45 * DEG), ("up", 12 * DEG), ("close", 5 * DEG), ("stand", 0.0)])
+        # The pelvis pitches up from face down as the body rises; the spine bends while the
+        # hands are down, so that they reach the floor with the hips over the feet.
+        pitch = c([(k, v * DEG) for k, v in _PELVIS_PITCH])
         # From the back the body rolls about its long axis onto the front: psi 180 -> 0 deg.
         psi = (c([("lie", np.pi), ("roll", np.pi), ("hands", 0.0)]) * self.roll_sign
                if self.start == "back" else np.zeros(n))
@@ -163,8 +185,6 @@ class _Getup:
             # Lying, a little flexion (front) or extension (back) brings the thighs onto the floor.
             lying = 6 * DEG if self.start == "front" else -6 * DEG
             flex = c([("lie", lying), ("roll", lying), ("hands", 6 * DEG), ("push", 6 * DEG), ("kneel", 92 * DEG)])
-            if s == self.back:  # the kneeling thigh stays upright as the body rises over it
-                flex = np.where(t >= self.keys["kneel"], pitch + 2 * DEG, flex)
             knee_flex = c([("lie", 4 * DEG), ("push", 8 * DEG), ("kneel", 118 * DEG)])
             if self.start == "back" and sign == self.roll_sign:
                 # the leg on top crosses over, knee to the floor: the body rolls over it instead
@@ -180,13 +200,13 @@ class _Getup:
             # Toes tucked under on the floor: the foot at a right angle to the shin.
             angles[:, ankle, 1] = c([("lie", 25 * DEG), ("hands", 25 * DEG), ("kneel", 0.0)])
             angles[:, B[f"{s}_Toe"], 1] = self.toe_curve(s)
-        # The spine: a slight arch lying, a flat back on hands and knees, upright when standing.
-        lean = c([("lie", -4 * DEG), ("push", -4 * DEG), ("kneel", 6 * DEG), ("step", 6 * DEG), ("rise", 20 * DEG),
-                  (("rise", 0.45), 25 * DEG), ("up", 12 * DEG), ("close", 2 * DEG)])
+        # The spine: a slight arch lying, a flat back on hands and knees, bent forward while the
+        # feet walk in and the hands lift, upright when standing.
+        lean = c([(k, v * DEG) for k, v in _SPINE_LEAN])
         for body, share in (("Torso", 0.4), ("Spine", 0.35), ("Chest", 0.25)):
             angles[:, B[body], 1] = share * lean
         # The head looks at the floor ahead on the floor and forward when up.
-        look = c([("lie", -10 * DEG), ("push", -25 * DEG), ("step", -25 * DEG), ("up", 0.0)])
+        look = c([("lie", -10 * DEG), ("push", -25 * DEG), ("crouch", -25 * DEG), ("up", 0.0)])
         angles[:, B["Neck"], 1] = 0.6 * look
         angles[:, B["Head"], 1] = 0.4 * look
         quat = quat_mul(_rot(np.zeros(n), pitch), _axis_quat(2, psi))
@@ -194,14 +214,14 @@ class _Getup:
 
     def hand_weight(self) -> np.ndarray:
         """0: the arm free, 1: the hand on its floor point."""
-        return self.curve([("roll", 0.0), ("hands", 0.0), ("push", 1.0), ("rise", 1.0), (("rise", 0.45), 0.0)])
+        return self.curve([("roll", 0.0), ("hands", 0.0), ("push", 1.0), ("lift", 1.0), (("lift", 0.6), 0.0)])
 
     def free_arms(self):
         """Arm posture when not on the floor: along the body lying, forward while rising."""
         c = self.curve
-        flex = c([("lie", -10 * DEG), ("rise", -10 * DEG), ("up", 35 * DEG), ("close", 8 * DEG), ("stand", 0.0)])
-        abduct = c([("lie", 8 * DEG), ("up", 12 * DEG), ("close", 10 * DEG)])
-        elbow = c([("lie", 10 * DEG), ("rise", 10 * DEG), ("up", 30 * DEG), ("close", 15 * DEG)])
+        flex = c([("lie", -10 * DEG), ("lift", -10 * DEG), ("up", 35 * DEG), ("stand", 8 * DEG), ("still", 0.0)])
+        abduct = c([("lie", 8 * DEG), ("up", 12 * DEG), ("stand", 10 * DEG)])
+        elbow = c([("lie", 10 * DEG), ("lift", 10 * DEG), ("up", 30 * DEG), ("stand", 15 * DEG)])
         return {s: _arm(self.t, s, flex, abduct, elbow) for s in SIDES}
 
     # ----------------------------------------------------------------- the solve
@@ -221,14 +241,11 @@ class _Getup:
         root[:, :2] = self._pinned(root, local)
         self._slide_knees(root, local)
 
-        # The front foot: from the step on, planted where the step puts it; the back leg holds
-        # its kneel (hinge angles) until the rise, then is solved by IK too.
-        i_step = self._index("step")
-        spec = _Spec(t, root, local[:, 0].copy(), self._leg_targets(root, local, i_step), free)
-        self._solve_leg_from(spec, self.side, local, i_step)
-        # The pelvis from the step: height keeps the back knee (floor bodies) on the floor until
-        # the rise, then goes up; horizontally, the centre of mass moves over the front foot.
-        self._rise(spec, local, i_step)
+        # From the bear stance on: both legs by IK on their feet, the pelvis on its key heights and,
+        # from the crouch, over the feet.
+        i_bear = self._index("bear")
+        spec = _Spec(t, root, local[:, 0].copy(), self._leg_targets(root, local, i_bear), free)
+        self._rise(spec, local, i_bear)
         root = spec.pelvis_pos
 
         # Hands on fixed floor points while they bear weight.
@@ -301,7 +318,7 @@ class _Getup:
         """Floor points of the hands: beside and a little ahead of where the shoulders are on
         hands and knees, fixed from the moment the hands are down until they lift."""
         body_pos, _ = forward_kinematics(root, local, OFFSETS)
-        i = self._index("step")
+        i = self._index("bear")
         chest = body_pos[i, B["Chest"], :2]
         forward = _normalize(body_pos[i, B["Head"], :2] - body_pos[i, B["Pelvis"], :2])
         left = np.array([-forward[1], forward[0]])
@@ -367,56 +384,35 @@ class _Getup:
             upper = quat_apply(quat_inv(chest_q), quat_apply(rot, quat_apply(chest_q, upper)))
         return upper, elbow
 
-    def _leg_targets(self, root, local, i_step):
-        """IK targets of both legs from the step on (before it the legs are hinge angles)."""
+    def _leg_targets(self, root, local, i_bear):
+        """IK targets of both legs from the bear stance on (before it they are hinge angles): the
+        tucked toes come down onto the floor, the knees lift, each foot walks in on its turn."""
         t, n = self.t, len(self.t)
         body_pos, body_quat = forward_kinematics(root, local, OFFSETS)
-        legs = _standing_legs(t, width=_STAND_WIDTH)
-        for s, sign in SIDES.items():
-            ball0 = body_pos[i_step, B[f"{s}_Toe"]].copy()
-            legs[s].ball = np.tile(ball0, (n, 1))
-            legs[s].foot_yaw = np.zeros(n)
-            legs[s].foot_pitch = np.full(n, 0.0)
-            legs[s].grounded = np.ones(n, bool)
-        # The front foot comes forward between the hands and is put down flat, level with the hip.
-        f = legs[self.side]
-        hip = body_pos[self._index("kneel"), B[f"{self.side}_Hip"]]
-        # straight ahead of its hip: the leg then flexes in its own plane, with no abduction or
-        # twist that would make the hip's x-y-z hinges flip as its flexion passes 90 deg
-        land = np.array([hip[0] + _LANDING_AHEAD, hip[1] + self._rest_lateral(), BALL_HEIGHT[self.side]])
-        start = f.ball[i_step].copy()
-        s = _minjerk((t - self.keys["step"]) / (self.keys["rise"] - self.keys["step"]))
-        f.ball = start + s[:, None] * (land - start)
-        f.ball[:, 2] += 0.10 * np.sin(np.pi * s)
-        f.grounded = (s <= 0) | (s >= 1)
-        # the foot's pitch at the step's start: whatever the tucked toes give; it lands on its
-        # ball, heel raised (the shin leans far forward in the crouch), and flattens as the body
-        # rises over it
-        shin_pitch = self._foot_pitch(body_quat[i_step, B[f"{self.side}_Ankle"]], f.foot_yaw[0])
-        heel = self.curve([("rise", _LANDING_HEEL), ("up", 0.0)])
-        f.foot_pitch = (1 - s) * shin_pitch + s * heel
-        f.toe_flat = np.where(s >= 1, 1.0, 0.3)
-        # The back foot stays tucked until the rise is over, then steps beside the front one.
-        b = legs[self.back]
-        b_start = b.ball[i_step].copy()
-        b.foot_pitch = np.full(n, self._foot_pitch(body_quat[i_step, B[f"{self.back}_Ankle"]], b.foot_yaw[0]))
-        s2 = _minjerk((t - self.keys["close"]) / (self.keys["stand"] - self.keys["close"]))
-        b_land = np.array([land[0], land[1] + SIDES[self.back] * 2 * _STAND_WIDTH, BALL_HEIGHT[self.back]])
-        # As the knee lifts the shin pivots on it and the ball of the foot comes down to the
-        # floor, the foot on its ball with the toes flat: it pushes while the body rises.
-        down = self.curve([("rise", 0.0), (("rise", 0.45), 1.0)])
-        b_start = np.tile(b_start, (n, 1))
-        b_start[:, 2] += down * (BALL_HEIGHT[self.back] - b_start[:, 2])
-        b.ball = b_start + s2[:, None] * (b_land - b_start)
-        b.ball[:, 2] += 0.08 * np.sin(np.pi * s2)
-        b.foot_pitch = (1 - s2) * ((1 - down) * b.foot_pitch + down * _BALL_PITCH)
-        b.grounded = (s2 <= 0) | (s2 >= 1)
-        b.toe_flat = np.where(s2 >= 1, 1.0, 0.0)
+        legs = _standing_legs(t, width=_FEET["width"])
+        hands = np.mean([xyz[:2] for xyz in self._hand_targets(root, local).values()], axis=0)
+        # the pelvis' heading, which the feet keep: a foot turned from it twists its hip, and a hip
+        # flexed 90 deg with any twist flips its x-y-z hinges
+        forward = _normalize(quat_apply(local[i_bear, 0], np.array([0.0, 0.0, 1.0]))[:2])
+        left = np.array([-forward[1], forward[0]])
+        yaw = float(np.arctan2(forward[1], forward[0]))
+        down = self.curve([("bear", 0.0), (("bear", 0.3), 1.0)])  # toes onto the floor
+        heel = self.curve([("crouch", _FEET["heel_land"]), (("crouch", 0.8), 0.0)])
+        for phase, s in (("foot_1", self.side), ("foot_2", self.back)):
+            leg = legs[s]
+            ball = np.tile(body_pos[i_bear, B[f"{s}_Toe"]], (n, 1))
+            ball[:, 2] += down * (BALL_HEIGHT[s] - ball[:, 2])
+            land = np.append(hands - _FEET["behind"] * forward + SIDES[s] * _FEET["width"] * left, BALL_HEIGHT[s])
+            u = _minjerk((t - self.keys[phase]) / (self.keys[_NEXT[phase]] - self.keys[phase]))
+            leg.ball = ball + u[:, None] * (land - ball)
+            leg.ball[:, 2] += _FEET["swing"] * np.sin(np.pi * u)
+            leg.foot_yaw = np.full(n, yaw)
+            tucked = self._foot_pitch(body_quat[i_bear, B[f"{s}_Ankle"]], yaw)
+            leg.foot_pitch = (1 - u) * ((1 - down) * tucked + down * _FEET["ball_pitch"]) + u * heel
+            leg.grounded = (u <= 0) | (u >= 1)
+            # the toe segment: as tucked (50 deg to the foot) until the toes are down, then flat
+            leg.toe_flat = np.clip((1 - down) * (50 * DEG / max(tucked, 1e-3)) + down, 0, 1)
         return legs
-
-    def _rest_lateral(self) -> float:
-        """Sideways offset of the front leg's toe joint from its hip in the rest pose."""
-        return float(sum(OFFSETS[B[f"{self.side}_{j}"]][1] for j in ("Knee", "Ankle", "Toe")))
 
     @staticmethod
     def _foot_pitch(foot_quat, yaw) -> float:
@@ -425,84 +421,48 @@ class _Getup:
         x = quat_apply(foot_quat, [1.0, 0.0, 0.0])
         return float(np.arctan2(-x[2], x[0] * np.cos(yaw) + x[1] * np.sin(yaw)))
 
-    def _solve_leg_from(self, spec, side, local, i0):
+    @staticmethod
+    def _solve_legs(spec, local, i0):
         solved = local.copy()
-        _solve_leg(spec, side, solved)
-        for j in ("Hip", "Knee", "Ankle"):
-            b = B[f"{side}_{j}"]
-            local[i0:, b] = solved[i0:, b]
-        # A foot in the air may turn its ankle past the range on the way to the floor target's
-        # orientation: held at the range instead (the foot is where it should be once it lands).
-        ankle = B[f"{side}_Ankle"]
-        air = np.flatnonzero(~spec.legs[side].grounded)
-        air = air[air >= i0]
-        if len(air):
-            lo, hi = (_LIMITS[3 * (ankle - 1): 3 * ankle] + [[1 * DEG, -1 * DEG]]).T
-            euler = quat_to_euler_xyz(local[air, ankle])
-            local[air, ankle] = quat_from_euler_xyz(np.clip(euler, lo, hi))
-        # The toes keep their own curve (tucked under until the foot is flat): the IK's toe
-        # follows the foot's pitch, which a tucked foot past the vertical does not have.
-        local[i0:, B[f"{side}_Toe"]] = _axis_quat(1, self.toe_curve(side))[i0:]
+        for side in SIDES:
+            _solve_leg(spec, side, solved)
+            for j in ("Hip", "Knee", "Ankle", "Toe"):
+                local[i0:, B[f"{side}_{j}"]] = solved[i0:, B[f"{side}_{j}"]]
 
     def toe_curve(self, side: str) -> np.ndarray:
-        tucked = -50 * DEG
-        if side == self.side:  # flat once the front foot is down
-            return self.curve([("lie", 0.0), ("hands", 0.0), ("kneel", tucked), ("step", tucked),
-                               ("rise", -_LANDING_HEEL), ("up", 0.0)])
-        return self.curve([("lie", 0.0), ("hands", 0.0), ("kneel", tucked), ("rise", tucked), (("rise", 0.45), -_BALL_PITCH),
-                           ("close", -_BALL_PITCH), ("stand", 0.0)])
+        """The toes' hinge on the floor: tucked under once on hands and knees (the legs' IK takes
+        over from the bear stance)."""
+        return self.curve([("lie", 0.0), ("hands", 0.0), ("kneel", -50 * DEG)])
 
-    def _rise(self, spec, local, i_step):
-        """From the step to the end: the pelvis keeps the back knee on the floor until the rise,
-        then rises over the front foot; the centre of mass is balanced over the support."""
-        t = self.t
-        root = spec.pelvis_pos
-        # the stepping foot is placed by its targets; its knee stays a floor body until it lifts
-        front = [B[f"{self.side}_{j}"] for j in ("Ankle", "Toe")]
-        # Until the rise: height and position from the floor contacts other than the front leg.
-        for _ in range(3):
-            z = self._floor_height(root, local, exclude=front)
-            root[i_step:, 2] = z[i_step:] - _SINK
-            xy = self._pinned(root, local, exclude=front)
-            root[i_step:, :2] = root[i_step - 1, :2] + xy[i_step:] - xy[i_step - 1]
-            self._solve_leg_from(spec, self.side, local, i_step)
-        i_rise = self._index("rise")
-        # From the rise on: both legs by IK, the pelvis lifted and balanced.
-        kneel_z = root[i_rise, 2]
-        lift = _minjerk((t - self.keys["rise"]) / (self.keys["close"] - self.keys["rise"]))
-        front_support = spec.legs[self.side].ball + quat_apply(
-            yaw_quat(spec.legs[self.side].foot_yaw), FOOT_CENTRE[self.side])
-        back_support = spec.legs[self.back].ball + quat_apply(
-            yaw_quat(spec.legs[self.back].foot_yaw), FOOT_CENTRE[self.back])
-        com0 = centre_of_mass(*forward_kinematics(root, local, OFFSETS), SKELETON)[i_rise, :2]
-        # over the front foot while the back one steps, between both at the end
-        w_front = self.curve([("rise", 0.0), ("up", 0.7), ("close", 1.0), ("stand", 1.0), ("still", 0.5)])
-        target = (w_front[:, None] * front_support + (1 - w_front[:, None]) * back_support)[:, :2]
-        into = self.curve([("rise", 0.0), ("up", 1.0)])[:, None]
-        align = self.curve([("rise", 1.0), ("up", 1.0), ("close", 0.0)])
-        target = (1 - into) * com0 + into * target
-        for _ in range(5):
-            reach = np.minimum(_max_pelvis_height(spec, self.side), _max_pelvis_height(spec, self.back))
-            stand = reach[-1] - 0.01
-            z = kneel_z + lift * (stand - kneel_z)
-            root[i_rise:, 2] = np.minimum(z, reach - 0.01)[i_rise:]
-            for side in SIDES:
-                self._solve_leg_from(spec, side, local, i_rise)
+    def _rise(self, spec, local, i_bear):
+        """The pelvis from the bear stance to the end. Until the knees lift the legs rest on the
+        floor; then the pelvis follows `_PELVIS_HEIGHT` (where the legs reach); from the crouch
+        on it moves so that the centre of mass comes over the feet before the hands lift."""
+        c, root = self.curve, spec.pelvis_pos
+        arms = [B[f"{s}_{j}"] for s in SIDES for j in ("Shoulder", "Elbow", "Wrist", "Hand")]
+        root[i_bear:, :2] = root[i_bear, :2]
+        height = c(_PELVIS_HEIGHT)
+        knees_up = c([(("bear", 0.45), 0.0), ("foot_1", 1.0)])
+        i_up = int(np.argmax(knees_up > 0))
+        feet = 0.5 * sum(spec.legs[s].ball + quat_apply(yaw_quat(spec.legs[s].foot_yaw), FOOT_CENTRE[s])
+                         for s in SIDES)[:, :2]
+        i_crouch = self._index("crouch")
+        over = c([("crouch", 0.0), (("crouch", _OVER_FEET), 1.0)])[:, None]
+        for k in range(6):
+            reach = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R")) - 0.01
+            self._solve_legs(spec, local, i_bear)
+            floor = self._floor_height(root, local, exclude=arms) - _SINK
+            floor[i_up:] = floor[i_up]
+            root[i_bear:, 2] = np.minimum(floor + knees_up * (height - floor), reach)[i_bear:]
+            self._solve_legs(spec, local, i_bear)
             com = centre_of_mass(*forward_kinematics(root, local, OFFSETS), SKELETON)[:, :2]
-            root[i_rise:, 0] += (target - com)[i_rise:, 0]
-            # Sideways the pelvis keeps the front hip in its foot's plane (the centre of mass
-            # stays between the feet): a degree of abduction as the hip's flexion passes 90 deg
-            # would make its x-y-z hinges flip. Once the hip is well below 90 deg the centre of
-            # mass is balanced sideways too, over the front foot while the other steps.
-            pos, quat = forward_kinematics(root, local, OFFSETS)
-            com = centre_of_mass(pos, quat, SKELETON)[:, :2]
-            in_plane = spec.legs[self.side].ball[:, 1] - self._rest_lateral() - pos[:, B[f"{self.side}_Hip"], 1]
-            root[i_rise:, 1] += (align * in_plane + (1 - align) * (target - com)[:, 1])[i_rise:]
+            if k == 0:
+                com_crouch = com[i_crouch].copy()
+            root[i_crouch:, :2] += ((1 - over) * com_crouch + over * feet - com)[i_crouch:]
         # the last move was horizontal: lower the pelvis where that took a foot out of reach
-        reach = np.minimum(_max_pelvis_height(spec, self.side), _max_pelvis_height(spec, self.back))
-        root[i_rise:, 2] = np.minimum(root[:, 2], reach - 0.01)[i_rise:]
-        for side in SIDES:
-            self._solve_leg_from(spec, side, local, i_rise)
+        reach = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R")) - 0.01
+        root[i_bear:, 2] = np.minimum(root[:, 2], reach)[i_bear:]
+        self._solve_legs(spec, local, i_bear)
 
 
 def _smooth(x, radius: int):

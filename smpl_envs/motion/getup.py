@@ -43,8 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..humanoid.kinematics import forward_kinematics, lowest_point
-from ..humanoid.skeleton import anatomical_limits
-from ..rotations import quat_apply, quat_from_euler_xyz, quat_inv, quat_mul, quat_to_euler_xyz, yaw_quat
+from ..rotations import quat_apply, quat_from_euler_xyz, quat_inv, quat_mul, yaw_quat
 from .motion import FPS, RawMotion
 from .plausibility import centre_of_mass, support_points_world
 from .procedural import (

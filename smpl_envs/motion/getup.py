@@ -27,8 +27,8 @@ mass is over the feet. Its key postures (`_PELVIS_PITCH`, `_SPINE_LEAN`, `_PELVI
 came from a search that kept the zero-moment point inside the hull and every hinge inside its
 anatomical range over several parameter draws (docs/corpus.md has the figures).
 
-Every clip passes `check_motion` as it is drawn for the corpus (the corpus redraws the few that
-do not). Three choices make that so: the knees stay under the hips on hands and knees; the feet
+Every clip passes `check_motion` as it is drawn for the corpus (it redraws the third that do
+not, most often hand placements at the ends of their ranges). Three choices make that so: the knees stay under the hips on hands and knees; the feet
 keep the pelvis' heading while the hips flex past 90 deg, since the humanoid's x-y-z hip hinges are
 in gimbal lock there and any twist or abduction makes them flip; and bodies on the floor rest
 `_SINK` deep in it.

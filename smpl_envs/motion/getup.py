@@ -28,10 +28,10 @@ came from a search that kept the zero-moment point inside the hull and every hin
 anatomical range over several parameter draws (docs/corpus.md has the figures).
 
 Every clip passes `check_motion` as it is drawn for the corpus (it redraws the third that do
-not, most often hand placements at the ends of their ranges). Three choices make that so: the knees stay under the hips on hands and knees; the feet
-keep the pelvis' heading while the hips flex past 90 deg, since the humanoid's x-y-z hip hinges are
-in gimbal lock there and any twist or abduction makes them flip; and bodies on the floor rest
-`_SINK` deep in it.
+not, most often hand placements at the ends of their ranges). Three choices make that so: the
+knees stay under the hips on hands and knees; the feet keep the pelvis' heading while the hips
+flex past 90 deg, since the humanoid's x-y-z hip hinges are in gimbal lock there and any twist or
+abduction makes them flip; and bodies on the floor rest `_SINK` deep in it.
 
 `getup(...)` is a pure, deterministic function of its parameters; `RANGES["getup"]` holds them.
 The clip ends standing still, feet about hip width apart, so it chains with the other families.
@@ -280,21 +280,19 @@ class _Getup:
     def _index(self, phase: str) -> int:
         return int(np.searchsorted(self.t, self.keys[phase] - 1e-9))
 
-    def _floor_height(self, root, local, exclude=()) -> np.ndarray:
-        """Pelvis height per frame that puts the lowest floor body (not in `exclude`) on the floor."""
+    def _floor_height(self, root, local) -> np.ndarray:
+        """Pelvis height per frame that puts the lowest floor body (the arms aside) on the floor."""
         body_pos, body_quat = forward_kinematics(root * [1, 1, 0], local, OFFSETS)
         pts, reach = support_points_world(body_pos, body_quat, SKELETON)
-        bodies = np.array([b for b in _FLOOR_BODIES if b not in exclude])
-        z = pts[:, bodies][..., 2] - reach[bodies]
+        z = pts[:, _FLOOR_BODIES][..., 2] - reach[_FLOOR_BODIES]
         return -z.reshape(len(z), -1).min(1)
 
-    def _pinned(self, root, local, exclude=()) -> np.ndarray:
+    def _pinned(self, root, local) -> np.ndarray:
         """Pelvis xy per frame such that the floor contacts common to consecutive frames do not
         move horizontally (their mean displacement is cancelled)."""
         body_pos, body_quat = forward_kinematics(root * [0, 0, 1], local, OFFSETS)
         pts, reach = support_points_world(body_pos, body_quat, SKELETON)
-        bodies = np.array([b for b in _FLOOR_BODIES if b not in exclude])
-        pts, reach = pts[:, bodies], reach[bodies]
+        pts, reach = pts[:, _FLOOR_BODIES], reach[_FLOOR_BODIES]
         touch = pts[..., 2] - reach < 0.015
         both = (touch[1:] & touch[:-1])[..., None]  # (T-1, bodies, K, 1)
         moved = np.where(both, pts[1:, ..., :2] - pts[:-1, ..., :2], 0.0).sum((1, 2))
@@ -438,7 +436,6 @@ class _Getup:
         floor; then the pelvis follows `_PELVIS_HEIGHT` (where the legs reach); from the crouch
         on it moves so that the centre of mass comes over the feet before the hands lift."""
         c, root = self.curve, spec.pelvis_pos
-        arms = [B[f"{s}_{j}"] for s in SIDES for j in ("Shoulder", "Elbow", "Wrist", "Hand")]
         root[i_bear:, :2] = root[i_bear, :2]
         height = c(_PELVIS_HEIGHT)
         knees_up = c([(("bear", 0.45), 0.0), ("foot_1", 1.0)])
@@ -450,7 +447,7 @@ class _Getup:
         for k in range(6):
             reach = np.minimum(_max_pelvis_height(spec, "L"), _max_pelvis_height(spec, "R")) - 0.01
             self._solve_legs(spec, local, i_bear)
-            floor = self._floor_height(root, local, exclude=arms) - _SINK
+            floor = self._floor_height(root, local) - _SINK
             floor[i_up:] = floor[i_up]
             root[i_bear:, 2] = np.minimum(floor + knees_up * (height - floor), reach)[i_bear:]
             self._solve_legs(spec, local, i_bear)

@@ -55,17 +55,16 @@ def _keep_decomposition(a, b, pick_b, seg: "Segments") -> np.ndarray:
     step = lambda x, y: np.abs(_wrap(x - y)).max(-1)  # noqa: E731
     clip, last = seg.clip_of_frame, seg.last
     frames, joints = np.nonzero(change.T)[::-1]  # sorted by joint, then frame
-    upto = np.append(frames[1:], 0)
+    # each change decides up to the next one of its joint and clip, or to the clip's end
     same_column = np.append((joints[1:] == joints[:-1]) & (clip[frames[1:]] == clip[frames[:-1]]), False)
-    upto = np.where(same_column, upto, last[frames] + 1)
+    upto = np.where(same_column, np.append(frames[1:], 0), last[frames] + 1)
     parity = False
     for k, (t, j) in enumerate(zip(frames, joints)):
-        if k == 0 or not (joints[k - 1] == j and clip[frames[k - 1]] == clip[t]):
+        if k == 0 or not same_column[k - 1]:
             parity = False  # a new joint or clip starts with the rule's choice
-        before = (b if pick_b[t - 1, j] ^ parity else a)[t - 1, j]
-        same = (b if pick_b[t - 1, j] ^ parity else a)[t, j]
-        other = (a if pick_b[t - 1, j] ^ parity else b)[t, j]
-        parity = (parity ^ True) if step(same, before) < step(other, before) else parity
+        kept, other = (b, a) if pick_b[t - 1, j] ^ parity else (a, b)
+        if step(kept[t, j], kept[t - 1, j]) < step(other[t, j], kept[t - 1, j]):
+            parity = not parity
         flip[t:upto[k], j] = parity
     return flip
 

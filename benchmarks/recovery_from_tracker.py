@@ -31,6 +31,7 @@ def main(argv=None) -> dict:
     p.add_argument("--num-envs", type=int, default=50)
     p.add_argument("--no-guide", action="store_true", help="the point goal only, as PHC shows it")
     p.add_argument("--guide", default="corpus:getup", help="the get-up clips shown to a body down")
+    p.add_argument("--walk-guide", action="store_true", help="a walk to the goal shown to a standing body far from it")
     p.add_argument("--action-base", default="reference", choices=("reference", "pull", "pose", "target"),
                    help="recovery_action_base while the goal is the recovery form (and not a get-up)")
     p.add_argument("--threads", type=int, default=1)
@@ -53,12 +54,15 @@ def main(argv=None) -> dict:
     kwargs["recovery_action_base"] = args.action_base
     if not args.no_guide:
         kwargs["getup_guide"] = args.guide
+    if args.walk_guide:
+        kwargs["walk_guide"] = True
     # A bare callable: the policy's own training record would (rightly) refuse another task id;
     # the settings that give its actions their meaning are passed on above instead.
     result = smpl_envs.evaluate(lambda obs: model.predict(obs, deterministic=True)[0], "SMPL/Recovery-v0",
                                 num_envs=args.num_envs, env_kwargs=kwargs, trials=args.trials)
     s = result.summary
-    guide = "point goal only" if args.no_guide else f"get-up guide {args.guide}"
+    guide = ", ".join([*([] if args.no_guide else [f"get-up guide {args.guide}"]),
+                       *(["walk guide"] if args.walk_guide else [])]) or "point goal only"
     print(f"{args.checkpoint} on SMPL/Recovery-v0 ({guide}; {kwargs}), {args.trials} trials per kind")
     print(f"{'start':<12}{'Succ-5s':>9}{'Succ-10s':>10}{'final distance (m)':>20}{'PHC Succ-10s':>14}")
     for kind in PHC:

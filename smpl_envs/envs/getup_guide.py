@@ -51,23 +51,17 @@ def turn(state: BodyState, cos, sin, offset) -> BodyState:
                      dof_pos=state.dof_pos, dof_vel=state.dof_vel)
 
 
-class GetupGuide:
-    """Per-world get-up clips for `num_worlds` worlds (module docstring). `lib` is the MotionLib of
-    the get-up clips (its `DeviceFrames` on a torch backend: `frames`)."""
+class ClipGuide:
+    """Per-world playback of the clips of one MotionLib (`frames`: its `DeviceFrames` on a torch
+    backend), each turned about the vertical and moved to where a world's body is: the state and
+    playback the get-up guide and the walk guide (`smpl_envs.envs.walk_guide`) share; their
+    `start` rules say which clip a world is shown and how it is placed."""
 
     def __init__(self, lib, frames, num_worlds: int, backend):
         self.lib, self.frames, self.backend = lib, frames, backend
         b = backend
-        first = lib.body_state(lib.starts)  # host arrays: each clip's first frame
-        prone = first.rot[:, 0, 2, 0] < 0   # the pelvis' forward axis points down: face down
-        if prone.all() or not prone.any():
-            have = "on the front" if prone.any() else "on the back"
-            raise ValueError(f"getup_guide: the get-up clips must start both on the front and on the back; "
-                             f"all {lib.num_motions} start {have}")
-        self._prone = b.asarray(np.flatnonzero(prone), "int")
-        self._supine = b.asarray(np.flatnonzero(~prone), "int")
-        self._clip_angle = b.asarray(_flat_angle(first.pos[:, HEAD, :2] - first.pos[:, 0, :2]))
-        self._clip_root = b.asarray(first.pos[:, 0])
+        self._first = lib.body_state(lib.starts)  # host arrays: each clip's first frame
+        self._clip_root = b.asarray(self._first.pos[:, 0])
         self.active = b.zeros(num_worlds, "bool")
         self.frame = b.zeros(num_worlds, "int")
         self.end = b.zeros(num_worlds, "int")
@@ -75,34 +69,27 @@ class GetupGuide:
         self.cos, self.sin = b.zeros(num_worlds) + 1.0, b.zeros(num_worlds)
         self.offset = b.zeros((num_worlds, 3))
 
-    def stop(self, ids) -> None:
-        self.active[ids] = False
-
-    def start(self, mask, body: BodyState, rng) -> None:
-        """Worlds in `mask` start a get-up matching how their `body` lies."""
-        b, m = self.backend, self.backend.xp
-        ids = b.nonzero(mask)
-        n = len(ids)
-        if n == 0:
-            return
-        prone = body.rot[ids, 0, 2, 0] < 0
-        clip = m.where(prone, self._prone[b.integers(rng, 0, len(self._prone), n)],
-                       self._supine[b.integers(rng, 0, len(self._supine), n)])
-        angle = _flat_angle(body.pos[ids, HEAD, :2] - body.pos[ids, 0, :2]) - self._clip_angle[clip]
+    def _place(self, ids, clip, angle, pelvis_xy) -> None:
+        """Worlds `ids` start clips `clip`, turned by `angle` about z, their first frame's pelvis
+        moved onto `pelvis_xy` (heights as the clip has them)."""
+        m = self.backend.xp
         c, s = m.cos(angle), m.sin(angle)
         root = self._clip_root[clip]
         turned = m.stack([c * root[:, 0] - s * root[:, 1], s * root[:, 0] + c * root[:, 1]], -1)
-        self.offset[ids, :2] = body.pos[ids, 0, :2] - turned
-        self.offset[ids, 2] = 0.0  # the clip lies on the floor already
+        self.offset[ids, :2] = pelvis_xy - turned
+        self.offset[ids, 2] = 0.0
         self.cos[ids], self.sin[ids] = c, s
         self.frame[ids] = self.frames.starts[clip]
         self.end[ids] = self.frames.starts[clip] + self.frames.lengths[clip] - 1
         self.age[ids] = 0
         self.active[ids] = True
 
+    def stop(self, ids) -> None:
+        self.active[ids] = False
+
     def advance(self, active=None) -> None:
-        """One frame on for the guided worlds (of the mask `active`); a get-up whose last frame
-        was shown ends."""
+        """One frame on for the guided worlds (of the mask `active`); a clip whose last frame was
+        shown ends."""
         step = self.active if active is None else self.active & active
         done = step & (self.frame >= self.end)
         self.frame[step] = self.backend.xp.minimum(self.frame[step] + 1, self.end[step])
@@ -110,11 +97,11 @@ class GetupGuide:
         self.active &= ~done
 
     def settled(self):
-        """(N,) how far each get-up is into its first SETTLE_STEPS steps, 0 to 1."""
+        """(N,) how far each clip is into its first SETTLE_STEPS steps, 0 to 1."""
         return (self.age * (1.0 / SETTLE_STEPS)).clip(max=1.0)
 
     def distance(self, body: BodyState):
-        """(N,) mean body distance (m) between `body` and each world's get-up frame now."""
+        """(N,) mean body distance (m) between `body` and each world's clip frame now."""
         d = self.current().pos - body.pos
         return xp(d).sqrt((d * d).sum(-1)).mean(-1)
 
@@ -129,3 +116,33 @@ class GetupGuide:
 
     def next_dof_pos(self):
         return self.frames.dof_pos[self.backend.xp.minimum(self.frame + 1, self.end)]
+
+
+class GetupGuide(ClipGuide):
+    """Get-ups for bodies down (module docstring): from the front for a body face down, from
+    the back for one face up, turned so the head points where the body's does."""
+
+    def __init__(self, lib, frames, num_worlds: int, backend):
+        super().__init__(lib, frames, num_worlds, backend)
+        b, first = backend, self._first
+        prone = first.rot[:, 0, 2, 0] < 0   # the pelvis' forward axis points down: face down
+        if prone.all() or not prone.any():
+            have = "on the front" if prone.any() else "on the back"
+            raise ValueError(f"getup_guide: the get-up clips must start both on the front and on the back; "
+                             f"all {lib.num_motions} start {have}")
+        self._prone = b.asarray(np.flatnonzero(prone), "int")
+        self._supine = b.asarray(np.flatnonzero(~prone), "int")
+        self._clip_angle = b.asarray(_flat_angle(first.pos[:, HEAD, :2] - first.pos[:, 0, :2]))
+
+    def start(self, mask, body: BodyState, rng) -> None:
+        """Worlds in `mask` start a get-up matching how their `body` lies."""
+        b, m = self.backend, self.backend.xp
+        ids = b.nonzero(mask)
+        n = len(ids)
+        if n == 0:
+            return
+        prone = body.rot[ids, 0, 2, 0] < 0
+        clip = m.where(prone, self._prone[b.integers(rng, 0, len(self._prone), n)],
+                       self._supine[b.integers(rng, 0, len(self._supine), n)])
+        angle = _flat_angle(body.pos[ids, HEAD, :2] - body.pos[ids, 0, :2]) - self._clip_angle[clip]
+        self._place(ids, clip, angle, body.pos[ids, 0, :2])

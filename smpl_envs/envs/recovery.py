@@ -73,13 +73,19 @@ second) and the imitation terms are the get-up's, as when tracking, and the epis
 terminate. It is what a tracker that has learnt the corpus' get-ups needs to use them; PHC's
 recovery shows the point goal only.
 
+A walk as the goal (`walk_guide`, off by default; `smpl_envs.envs.walk_guide`): a world whose goal
+takes the recovery form while its body is up is shown a walk from where it stands to the goal
+(a turn in small steps, a walk, a stop: `smpl_envs.motion.approach`), under the same rules; after
+a get-up, the walk. A tracker walks where a reference walks; towards a point it stands.
+
 Episode rules: no termination while recovering (d > switch_distance) nor during the grace that
 follows a recovering step, a fallen or far start, or a continued termination (`grace_steps`);
 otherwise Imitation's relaxed early termination (termination_distance). A diverged simulation
 always ends the episode; the time limit truncates it.
 
 `info` adds `recovering` ((N,) bool), `root_distance` ((N,) m) and `start_kind` ((N,) index into
-START_KINDS); with `getup_guide`, `guided` ((N,) bool: the observation showed a get-up).
+START_KINDS); with `getup_guide` or `walk_guide`, `guided` ((N,) bool: the observation showed a
+guide's get-up or walk).
 
 Backends: both (`backend="cpu"` or `"warp"`), with one code path; on MuJoCo Warp the per-world
 recovery state, the start draws (the env's torch generator: the same seed gives the same
@@ -288,7 +294,8 @@ class RecoveryVecEnv(ImitationVecEnv):
     reference holds its last frame, no truncation at the clip's end), fallen_cache_size (128),
     fallen_seed (0), recovery_action_base ("reference", "pose", "target" or "pull": module docstring),
     getup_guide (None; get-up clips, e.g. "corpus:getup", shown as the goal of a body down:
-    `smpl_envs.envs.getup_guide`);
+    `smpl_envs.envs.getup_guide`), walk_guide (False; True: a walk to the goal shown to a standing
+    body far from it: `smpl_envs.envs.walk_guide`);
     and Imitation's (motions: "stand", reward_weights, reward_scales,
     energy_weight, termination_distance, action_mode, residual_scale, core kwargs).
     """
@@ -297,17 +304,19 @@ class RecoveryVecEnv(ImitationVecEnv):
     backends = ("cpu", "warp")
     # When and how the observation takes the recovery form, and what a residual action is added to then.
     policy_kwargs = (*ImitationVecEnv.policy_kwargs, "switch_distance", "clamp_distance", "recovery_action_base",
-                     "getup_guide")
+                     "getup_guide", "walk_guide")
     switch_distance = property(lambda self: self.recovery.switch_distance)
     clamp_distance = property(lambda self: self.recovery.clamp_distance)
     recovery_action_base = property(lambda self: self.recovery.action_base)
     getup_guide = property(lambda self: self.recovery.getup_guide)
+    walk_guide = property(lambda self: self.recovery.walk_guide)
 
     def __init__(self, num_envs: int = 1, *, motions="stand", starts=None, switch_distance=SWITCH_DISTANCE,
                  clamp_distance=CLAMP_DISTANCE, point_scale=POINT_SCALE, point_clip=POINT_CLIP,
                  recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT, grace_steps=GRACE_STEPS,
                  continue_prob=0.5, far_distance=FAR_DISTANCE, hold_end=True, fallen_cache_size=128,
-                 fallen_seed=0, recovery_action_base="reference", getup_guide=None, **kwargs):
+                 fallen_seed=0, recovery_action_base="reference", getup_guide=None, walk_guide=False,
+                 **kwargs):
         if "recovery" in kwargs:
             raise ValueError("recovery: Recovery-v0 always recovers; its settings are its own kwargs")
         recovery = dict(starts=DEFAULT_STARTS if starts is None else starts, switch_distance=switch_distance,
@@ -315,7 +324,8 @@ class RecoveryVecEnv(ImitationVecEnv):
                         recovery_imitation_weight=recovery_imitation_weight, grace_steps=grace_steps,
                         continue_prob=continue_prob, far_distance=far_distance, hold_end=hold_end,
                         fallen_cache_size=fallen_cache_size, fallen_seed=fallen_seed,
-                        recovery_action_base=recovery_action_base, getup_guide=getup_guide)
+                        recovery_action_base=recovery_action_base, getup_guide=getup_guide,
+                        walk_guide=walk_guide)
         super().__init__(num_envs, motions=motions, recovery=recovery, **kwargs)
 
     def regenerate_fallen(self, seed: int | None = None) -> None:

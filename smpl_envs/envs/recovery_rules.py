@@ -8,6 +8,7 @@ task built on the imitation env.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 
 import numpy as np
@@ -17,6 +18,7 @@ from ..motion.library import DeviceFrames, load_motions
 from .base import check_number, check_range
 from .fallen import FallenStates
 from .getup_guide import DOWN_HEIGHT, RESTART_DISTANCE, SETTLE_STEPS, GetupGuide
+from .walk_guide import TURN_AWAY, WalkGuide, heading_of, wrap_angle
 
 START_KINDS = ("reference", "fallen", "far", "fallen+far")
 DEFAULT_STARTS = {"reference": 0.6, "fallen": 0.3, "far": 0.05, "fallen+far": 0.05}
@@ -104,7 +106,8 @@ class RecoveryController:
     def __init__(self, env, *, starts=None, switch_distance=SWITCH_DISTANCE, clamp_distance=CLAMP_DISTANCE,
                  point_scale=POINT_SCALE, point_clip=POINT_CLIP, recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT,
                  grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
-                 fallen_cache_size=128, fallen_seed=0, recovery_action_base="reference", getup_guide=None):
+                 fallen_cache_size=128, fallen_seed=0, recovery_action_base="reference", getup_guide=None,
+                 walk_guide=False):
         self.p = check_starts({"reference": 1.0} if starts is None else starts)
         if recovery_action_base not in ACTION_BASES:
             raise ValueError(f"recovery_action_base must be one of {ACTION_BASES}, got {recovery_action_base!r}")
@@ -133,7 +136,12 @@ class RecoveryController:
         self.showing = b.zeros(n, "bool")    # the last observation's goal is in the recovery form
         self.guide = None if getup_guide is None else _make_guide(getup_guide, env)
         self.getup_guide = getup_guide
-        self.guided = b.zeros(n, "bool")     # the last observation's goal is a get-up (`getup_guide`)
+        if not isinstance(walk_guide, (bool, np.bool_)):
+            raise ValueError(f"walk_guide must be True or False, got {walk_guide!r}")
+        self.walk = _make_walk_guide(env) if walk_guide else None
+        self.walk_guide = bool(walk_guide)
+        self.guided = b.zeros(n, "bool")     # the last observation's goal is a guide's clip (get-up or walk)
+        self._shown = [b.zeros(n, "bool") for _ in self._guides()]  # ... per guide
         self.last_target = b.zeros((n, env.single_action_space.shape[0]))  # each world's last PD targets
 
     def set_starts(self, starts) -> None:
@@ -169,9 +177,10 @@ class RecoveryController:
             bearing = b.uniform(rng, m, 0.0, 2.0 * np.pi)
             q[far, :2] += b.asarray(r[:, None] * xp.stack([xp.cos(bearing), xp.sin(bearing)], -1))
         self.start_kind[ids] = kinds
-        if self.guide is not None:
-            self.guide.stop(ids)
-            self.guided[ids] = False
+        for g, shown in zip(self._guides(), self._shown):
+            g.stop(ids)
+            shown[ids] = False
+        self.guided[ids] = False
         self.last_target[ids] = q[:, 7:]  # "target" base: a start holds the pose it starts in
         self.grace[ids] = xp.where(kinds > 0, self.grace_steps, 0)
         d = q[:, :3] - ref_root
@@ -213,27 +222,54 @@ class RecoveryController:
         """The reference the observation shows (`recovery_reference` beyond switch_distance; with
         `getup_guide`, a get-up for a body down, started here: `smpl_envs.envs.getup_guide`)."""
         far = root_distance(body, ref_next) > self.switch_distance
-        if self.guide is None:
+        guides = self._guides()
+        if not guides:
             self.showing = far
             return recovery_reference(body, ref_next, far, self.clamp_distance) if far.any() else ref_next
-        g = self.guide
-        down = far & (body.pos[:, 0, 2] < DOWN_HEIGHT)
-        if down.any():
+        low = body.pos[:, 0, 2] < DOWN_HEIGHT
+        down = far & low
+        g, w = self.guide, self.walk
+        if g is not None and down.any():
             lost = g.active & (g.age >= SETTLE_STEPS) & (g.distance(body) > RESTART_DISTANCE)
-            g.start(down & (~g.active | lost), body, rng)
-        self.guided = self.backend.copy(g.active)
+            new = down & (~g.active | lost)  # a body that fell while walking too
+            g.start(new, body, rng)
+            if w is not None:
+                w.stop(self.backend.nonzero(new))
+        if w is not None:
+            busy = g.active if g is not None else self.backend.zeros(len(far), "bool")  # rising: not yet
+            lost = w.active & (w.age >= SETTLE_STEPS) & (w.distance(body) > RESTART_DISTANCE)
+            # Back near the goal but facing away (only just recovered: within the grace, so a
+            # tracked clip's own quick turns are left to the tracker): a turn on the spot.
+            away = (self.grace > 0) & (abs(wrap_angle(heading_of(body.rot) - heading_of(ref_next.rot))) > TURN_AWAY)
+            w.start(~low & ~busy & (far | away) & (~w.active | lost), body, ref_next, far)
+        # Which guide each world's observation shows; the step's residual base and reward follow it
+        # even when the clip ends in between (`advance`).
+        self._shown = [self.backend.copy(guide.active) for guide in guides]
+        self.guided = self._shown[0] | self._shown[-1]
         self.showing = far & ~self.guided
         out = recovery_reference(body, ref_next, self.showing, self.clamp_distance) if self.showing.any() else ref_next
-        return where_state(self.guided, g.next(), out) if self.guided.any() else out
+        for guide, shown in zip(guides, self._shown):
+            if shown.any():
+                out = where_state(shown, guide.next(), out)
+        return out
+
+    def _guides(self) -> list:
+        return [g for g in (self.guide, self.walk) if g is not None]
 
     def guide_reference(self):
-        """The get-up frames the guided worlds' bodies should match now; None when no world is
+        """The guides' frames the guided worlds' bodies should match now; None when no world is
         guided (no guide, or none shown), so the reward's extra terms are computed only then."""
-        return None if self.guide is None or not bool(self.guided.any()) else self.guide.current()
+        if not bool(self.guided.any()):
+            return None
+        pairs = [(g, shown) for g, shown in zip(self._guides(), self._shown) if shown.any()]
+        out = pairs[0][0].current()
+        for g, shown in pairs[1:]:
+            out = where_state(shown, g.current(), out)
+        return out
 
     def advance(self, active=None) -> None:
-        if self.guide is not None:
-            self.guide.advance(active)
+        for g in self._guides():
+            g.advance(active)
 
     def pd_targets(self, targets, actions, action_scale, action_mode: str, residual_scale: float, pose, ref_pose):
         """The PD targets of a step: Imitation's `targets`, except for residual actions of worlds
@@ -250,16 +286,18 @@ class RecoveryController:
                 base = pose if self.action_base == "pose" else self.last_target
             moved = (base + actions * span).clip(-action_scale, action_scale)
             targets = self.backend.xp.where(self.showing[:, None], moved, targets)
-        if self.guide is not None and action_mode == "residual" and bool(self.guided.any()):
-            # A get-up is tracked as a reference is, around the body's pose pulled toward its next
-            # frame by at most the residual range (near the get-up: its frame), a range that grows
-            # from 0 over the get-up's first second, so that a body lying in another pose is not
-            # yanked into the clip's by its PD gains (it leaves the floor).
+        if action_mode == "residual" and bool(self.guided.any()):
+            # A guide's clip is tracked as a reference is, around the body's pose pulled toward its
+            # next frame by at most the residual range (near the clip: its frame), a range that
+            # grows from 0 over the clip's first second, so that a body lying in another pose is
+            # not yanked into the clip's by its PD gains (it leaves the floor).
             span = residual_scale * action_scale
-            pull = span * self.guide.settled()[:, None]
-            base = pose + (self.guide.next_dof_pos() - pose).clip(-pull, pull)
-            follow = (base + actions * span).clip(-action_scale, action_scale)
-            targets = self.backend.xp.where(self.guided[:, None], follow, targets)
+            for g, shown in zip(self._guides(), self._shown):
+                if bool(shown.any()):
+                    pull = span * g.settled()[:, None]
+                    base = pose + (g.next_dof_pos() - pose).clip(-pull, pull)
+                    follow = (base + actions * span).clip(-action_scale, action_scale)
+                    targets = self.backend.xp.where(shown[:, None], follow, targets)
         self.last_target[:] = targets
         return targets
 
@@ -267,7 +305,7 @@ class RecoveryController:
         copy = self.backend.copy
         info = {"recovering": self.root_distance > self.switch_distance, "root_distance": copy(self.root_distance),
                 "start_kind": copy(self.start_kind)}
-        if self.guide is not None:
+        if self._guides():
             info["guided"] = copy(self.guided)
         return info
 
@@ -279,3 +317,19 @@ def _make_guide(motions, env) -> GetupGuide:
         raise ValueError(f"getup_guide: {e}") from None
     frames = lib if env.backend.name == "cpu" else DeviceFrames(lib, env.backend.device)
     return GetupGuide(lib, frames, env.num_envs, env.backend)
+
+
+def _make_walk_guide(env) -> WalkGuide:
+    lib = approach_library()
+    frames = lib if env.backend.name == "cpu" else DeviceFrames(lib, env.backend.device)
+    return WalkGuide(lib, frames, env.num_envs, env.backend)
+
+
+@functools.lru_cache(maxsize=1)
+def approach_library():
+    """The walk guide's clips (`smpl_envs.motion.approach.approach_set`), made once per process:
+    a few seconds of generation every recovery env would otherwise repeat."""
+    from ..motion.approach import approach_set
+    from ..motion.library import MotionLib
+
+    return MotionLib(approach_set())

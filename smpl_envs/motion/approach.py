@@ -1,0 +1,80 @@
+"""Walks from standing to a stop at a place: the clips the recovery option `walk_guide` shows a
+standing body far from its goal (`smpl_envs.envs.walk_guide`).
+
+A clip stands still for a moment, turns by `turn` (radians, left positive) in small slow steps
+(people turn first, then walk), walks on `distance` m and stops, standing. `approach_set()` is the
+grid of them the guide chooses from: their end points (relative to the start, in the start's
+heading frame) cover every direction at 30 deg and distances of 0.9-6.2 m: turned by at most ~15 deg more, one of them ends within ~0.3 m of any goal in that
+range. `turn_on_the_spot` clips turn a standing body round to face the way its goal faces.
+Frames, axes and signs are procedural's: x forward, y left, z up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .motion import RawMotion
+from .procedural import DEG, _keys, _locomotion
+from .synthetic import WALK
+
+STAND = 0.6                 # s standing still at either end
+RAMP = 1.5                  # s from standing to the cruising speed, and back
+SLOW = 0.35                 # m/s while turning
+# rad/s. The tracker followed every clip of the grid from its first frame at 45 deg/s, and lost
+# left turns at 60 and 90 (19 % and 30 % of a fifth of the grid; runs/tracker_getup3 at 10M).
+TURN_RATE = 45 * DEG
+TURNS = np.arange(-150, 181, 30) * DEG
+DISTANCES = np.arange(0.5, 5.51, 0.5)
+
+
+def approach(turn: float, distance: float, name: str = "approach") -> RawMotion:
+    """A walk from standing that turns by `turn` (rad, |turn| <= pi), walks on `distance` m (>= 0.3)
+    and stops (module docstring)."""
+    if not (np.isfinite(turn) and abs(turn) <= np.pi + 1e-9):
+        raise ValueError(f"approach: turn = {turn!r} must be an angle in [-pi, pi] radians")
+    if not (np.isfinite(distance) and distance >= 0.3):
+        raise ValueError(f"approach: distance = {distance!r} must be at least 0.3 m")
+    # People turn first, in small slow steps, then walk on: the turn is taken at SLOW m/s (0.27
+    # m/s^2 of lateral acceleration); short approaches never go faster than a few small steps need.
+    speed = float(np.clip(distance / 3.0, SLOW, 1.1))
+    turning = abs(turn) / TURN_RATE
+    sign = np.sign(turn)
+    t0 = STAND + 0.6                                  # walking slowly, ready to turn
+    t1 = t0 + turning                                 # turned: speeding up
+    cruise = max(distance / speed - RAMP, 0.0)        # the two ramps walk about one ramp's time at speed
+    duration = t1 + 2 * RAMP + cruise + STAND
+    edge = min(0.2, turning / 2)                      # min-jerk edges of the turn rate
+    rate = abs(turn) / max(turning - edge, 1e-9)      # so that the turn integrates to `turn`
+    t_turn = np.array([0.0, t0, t0 + edge, t1 - edge, t1 + 1e-6, duration + 10])
+    yaw_rate = lambda t: _keys(t, t_turn, sign * rate * np.array([0, 0, 1, 1, 0, 0]))  # noqa: E731
+    t_speed = np.array([0.0, STAND, t0, t1, t1 + RAMP, t1 + RAMP + cruise, duration - STAND, duration + 10])
+    spd = lambda t: _keys(t, t_speed, np.array([0, 0, SLOW, SLOW, speed, speed, 0, 0]))  # noqa: E731
+    # Stepping starts before the body moves (a foot that moved unlifted would slide) and stops as it halts.
+    t_act = np.array([0.0, STAND - 0.4, STAND + 0.2, duration - STAND - 0.7, duration - STAND + 0.1, duration + 10])
+    act = lambda t: _keys(t, t_act, np.array([0, 0, 1, 1, 0, 0]))  # noqa: E731
+    stride = lambda t: np.minimum(np.clip((1.3 / np.maximum(spd(t), 0.3)) ** 0.35, 0.8, 1.4),  # noqa: E731
+                                  0.55 / np.maximum(np.abs(yaw_rate(t)), 1e-3)).clip(0.55)
+    return _locomotion(name, duration, WALK, spd, yaw_rate=yaw_rate, activity=act, stride=stride)
+
+
+def turn_on_the_spot(turn: float, name: str = "turn") -> RawMotion:
+    """Stepping round on the spot by `turn` (rad, left positive) at TURN_RATE, from standing to standing."""
+    if not (np.isfinite(turn) and 0 < abs(turn) <= np.pi + 1e-9):
+        raise ValueError(f"turn_on_the_spot: turn = {turn!r} must be a non-zero angle in [-pi, pi] radians")
+    edge = 0.4                                        # s of easing at either end of the turn
+    t0, t1 = STAND + 0.4, STAND + 0.4 + abs(turn) / TURN_RATE + edge
+    t_turn = np.array([0.0, t0, t0 + edge, t1 - edge, t1, t1 + STAND + 10])
+    yaw_rate = lambda t: _keys(t, t_turn, np.sign(turn) * TURN_RATE * np.array([0, 0, 1, 1, 0, 0]))  # noqa: E731
+    t_act = np.array([0.0, STAND - 0.2, t0 + 0.2, t1, t1 + 0.6, t1 + STAND + 10])
+    act = lambda t: _keys(t, t_act, np.array([0, 0, 1, 1, 0, 0]))  # noqa: E731
+    stride = min(1.0, 0.55 / TURN_RATE)
+    return _locomotion(name, t1 + 0.6 + STAND, WALK, 0.0, yaw_rate=yaw_rate, activity=act,
+                       stride=lambda t: np.full(np.shape(t), stride))
+
+
+def approach_set() -> list[RawMotion]:
+    """The guide's clips: every turn of TURNS with every distance of DISTANCES, then a turn on the
+    spot by each of TURNS (bar 0), which the guide shows a body near its goal but facing away."""
+    walks = [approach(float(a), float(d), f"approach_{round(a / DEG):+04d}_{d:.1f}") for a in TURNS for d in DISTANCES]
+    turns = [turn_on_the_spot(float(a), f"turn_{round(a / DEG):+04d}") for a in TURNS if a != 0]
+    return walks + turns

@@ -140,8 +140,9 @@ class RecoveryController:
             raise ValueError(f"walk_guide must be True or False, got {walk_guide!r}")
         self.walk = _make_walk_guide(env) if walk_guide else None
         self.walk_guide = bool(walk_guide)
+        self._guides = tuple(g for g in (self.guide, self.walk) if g is not None)  # fixed from here on
         self.guided = b.zeros(n, "bool")     # the last observation's goal is a guide's clip (get-up or walk)
-        self._shown = [b.zeros(n, "bool") for _ in self._guides()]  # ... per guide
+        self._shown = [b.zeros(n, "bool") for _ in self._guides]  # ... per guide
         self.last_target = b.zeros((n, env.single_action_space.shape[0]))  # each world's last PD targets
 
     def set_starts(self, starts) -> None:
@@ -177,7 +178,7 @@ class RecoveryController:
             bearing = b.uniform(rng, m, 0.0, 2.0 * np.pi)
             q[far, :2] += b.asarray(r[:, None] * xp.stack([xp.cos(bearing), xp.sin(bearing)], -1))
         self.start_kind[ids] = kinds
-        for g, shown in zip(self._guides(), self._shown):
+        for g, shown in zip(self._guides, self._shown):
             g.stop(ids)
             shown[ids] = False
         self.guided[ids] = False
@@ -222,7 +223,7 @@ class RecoveryController:
         """The reference the observation shows (`recovery_reference` beyond switch_distance; with
         `getup_guide`, a get-up for a body down, started here: `smpl_envs.envs.getup_guide`)."""
         far = root_distance(body, ref_next) > self.switch_distance
-        guides = self._guides()
+        guides = self._guides
         if not guides:
             self.showing = far
             return recovery_reference(body, ref_next, far, self.clamp_distance) if far.any() else ref_next
@@ -245,7 +246,7 @@ class RecoveryController:
         # Which guide each world's observation shows; the step's residual base and reward follow it
         # even when the clip ends in between (`advance`).
         self._shown = [self.backend.copy(guide.active) for guide in guides]
-        self.guided = self._shown[0] | self._shown[-1]
+        self.guided = functools.reduce(lambda a, b: a | b, self._shown)
         self.showing = far & ~self.guided
         out = recovery_reference(body, ref_next, self.showing, self.clamp_distance) if self.showing.any() else ref_next
         for guide, shown in zip(guides, self._shown):
@@ -253,22 +254,19 @@ class RecoveryController:
                 out = where_state(shown, guide.next(), out)
         return out
 
-    def _guides(self) -> list:
-        return [g for g in (self.guide, self.walk) if g is not None]
-
     def guide_reference(self):
         """The guides' frames the guided worlds' bodies should match now; None when no world is
         guided (no guide, or none shown), so the reward's extra terms are computed only then."""
         if not bool(self.guided.any()):
             return None
-        pairs = [(g, shown) for g, shown in zip(self._guides(), self._shown) if shown.any()]
+        pairs = [(g, shown) for g, shown in zip(self._guides, self._shown) if shown.any()]
         out = pairs[0][0].current()
         for g, shown in pairs[1:]:
             out = where_state(shown, g.current(), out)
         return out
 
     def advance(self, active=None) -> None:
-        for g in self._guides():
+        for g in self._guides:
             g.advance(active)
 
     def pd_targets(self, targets, actions, action_scale, action_mode: str, residual_scale: float, pose, ref_pose):
@@ -292,7 +290,7 @@ class RecoveryController:
             # grows from 0 over the clip's first second, so that a body lying in another pose is
             # not yanked into the clip's by its PD gains (it leaves the floor).
             span = residual_scale * action_scale
-            for g, shown in zip(self._guides(), self._shown):
+            for g, shown in zip(self._guides, self._shown):
                 if bool(shown.any()):
                     pull = span * g.settled()[:, None]
                     base = pose + (g.next_dof_pos() - pose).clip(-pull, pull)
@@ -305,7 +303,7 @@ class RecoveryController:
         copy = self.backend.copy
         info = {"recovering": self.root_distance > self.switch_distance, "root_distance": copy(self.root_distance),
                 "start_kind": copy(self.start_kind)}
-        if self._guides():
+        if self._guides:
             info["guided"] = copy(self.guided)
         return info
 

@@ -78,7 +78,16 @@ DEFAULTS: dict[str, Any] = {
 PHC_RECOVERY = {"fallen": (95.0, 98.8), "far": (83.7, 99.5), "fallen+far": (93.4, 98.8)}
 # Settings of what an action does that every primitive must share with the composer's env.
 ACTION_SETTINGS = ("substeps", "action_mode", "residual_scale")
-RECOVERY_SETTINGS = ("switch_distance", "clamp_distance", "recovery_action_base")
+
+
+def recovery_settings() -> tuple[str, ...]:
+    """The policy settings Recovery-v0 has beyond Imitation-v0's: how the recovery goal is shown
+    and what a residual acts around (the get-up and walk guides included). A recovery primitive
+    trained with them runs with them in the composer's env."""
+    from smpl_envs.envs.imitation import ImitationVecEnv
+    from smpl_envs.envs.recovery import RecoveryVecEnv
+
+    return tuple(k for k in RecoveryVecEnv.policy_kwargs if k not in ImitationVecEnv.policy_kwargs)
 
 
 # ---------------------------------------------------------------------------------------- the recipe
@@ -196,8 +205,9 @@ def settings_for(agent, env_id: str) -> dict:
     if env_id == RECOVERY:
         recovery = agent.env_kwargs.get("recovery")
         recovery = recovery if isinstance(recovery, dict) else {}
-        out.update({k: recovery[k] for k in RECOVERY_SETTINGS if k in recovery})
-        out.update({k: trained[k] for k in RECOVERY_SETTINGS if k in trained})
+        names = recovery_settings()
+        out.update({k: recovery[k] for k in names if k in recovery})
+        out.update({k: trained[k] for k in names if k in trained})
     return out
 
 
@@ -446,7 +456,7 @@ class Pipeline:
                 f"its actions would mean something else there (set composer env.kwargs.{k})")
             if name == "recovery":  # the composer's env recovers as the recovery primitive learnt to
                 recovery.update(settings_for(agent, RECOVERY) if agent.env_id != RECOVERY else
-                                {k: theirs[k] for k in RECOVERY_SETTINGS if k in theirs})
+                                {k: theirs[k] for k in recovery_settings() if k in theirs})
                 for k in ACTION_SETTINGS:
                     recovery.pop(k, None)
         kwargs["recovery"] = recovery or True
@@ -627,4 +637,4 @@ def perpetual_checkpoint(target: str | Path, *, which: str = "best", options: di
 
 
 __all__ = ["pmcp", "Pipeline", "load_pipeline", "check_pipeline", "hard_clips", "success_on", "evaluate_as",
-           "settings_for", "summary_tables", "perpetual_checkpoint", "DEFAULTS"]
+           "settings_for", "recovery_settings", "summary_tables", "perpetual_checkpoint", "DEFAULTS"]

@@ -16,7 +16,7 @@ import yaml
 import agents
 import smpl_envs  # noqa: F401
 from agents.cli import main
-from agents.pmcp import Pipeline, check_pipeline, hard_clips, load_pipeline, success_on
+from agents.pmcp import Pipeline, check_pipeline, hard_clips, load_pipeline, settings_for, success_on
 from agents.recipes import RecipeError, find_checkpoint
 from smpl_envs.perpetual import chained_reference, count_losses, heading
 
@@ -103,6 +103,25 @@ def test_the_shipped_pipeline_recipe_loads():
 def test_pipeline_recipe_mistakes_are_named(change, message):
     with pytest.raises((RecipeError, TypeError), match=message):
         check_pipeline({**PIPELINE, **change})
+
+
+def test_a_recovery_policy_s_guides_travel_between_imitation_and_recovery():
+    """A composer trained on Imitation-v0 with guides in its recovery dict is evaluated on
+    Recovery-v0 with them, and the reverse direction keeps only what Imitation-v0 has."""
+    from types import SimpleNamespace
+
+    recovery = {"recovery_action_base": "pull", "getup_guide": "corpus:getup", "walk_guide": True,
+                "starts": {"fallen": 1.0}, "continue_prob": 0.5}
+    composer = SimpleNamespace(env_id="SMPL/Imitation-v0", env_kwargs={
+        "action_mode": "residual", "residual_scale": 0.25, "recovery": recovery})
+    got = settings_for(composer, "SMPL/Recovery-v0")
+    assert got["getup_guide"] == "corpus:getup" and got["walk_guide"] is True
+    assert got["recovery_action_base"] == "pull" and got["action_mode"] == "residual"
+    assert "starts" not in got and "continue_prob" not in got  # training choices, not policy settings
+    primitive = SimpleNamespace(env_id="SMPL/Recovery-v0", env_kwargs={
+        "action_mode": "residual", "residual_scale": 0.25, "getup_guide": "corpus:getup", "walk_guide": True})
+    back = settings_for(primitive, "SMPL/Imitation-v0")
+    assert "getup_guide" not in back and back["residual_scale"] == 0.25
 
 
 def test_a_run_directory_keeps_its_recipe(tmp_path):

@@ -53,7 +53,10 @@ def episode(agent, kind: str, steps: int, seed: int, tmp: Path) -> tuple[list[np
             return out
 
     trained = policy_settings.training_record(agent)
-    kwargs = _trained_make_kwargs("SMPL/Recovery-v0", *trained, {"continue_prob": 0.0, "max_episode_steps": steps,
+    # The protocol's trial (RecoveryProtocol.make_env): the standing clip, not the training clips,
+    # whose reference would walk away from a body on the floor.
+    kwargs = _trained_make_kwargs("SMPL/Recovery-v0", *trained, {"motions": "stand", "hold_end": True,
+                                                                  "continue_prob": 0.0, "max_episode_steps": steps,
                                                                   "termination_distance": None,
                                                                   "far_distance": (3.0, 3.0), "render_size": TILE}, ())
     env = Trial(gym.make("SMPL/Recovery-v0", render_mode="rgb_array", **kwargs))

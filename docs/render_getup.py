@@ -1,6 +1,6 @@
 """The recovery primitive getting up: a video of one trial per start kind side by side
 (fallen, far, fallen+far, 10 s each, started as PHC's recovery protocol starts them) and a frame
-strip of the fallen start, one frame a second over its first five seconds, for the README.
+strip of the fallen start, six frames evenly over the trial (0, 2, ..., 10 s), for the README.
 
     python docs/render_getup.py CHECKPOINT_OR_RUN_OR_NAME [--seconds 10] [--seed 0]
         [--out docs/videos/getup.mp4]            # and docs/videos/getup.png, the strip
@@ -99,11 +99,11 @@ def main(argv=None) -> None:
             print(f"{kind}: " + (f"back within {THRESHOLD} m after {back / FPS:.1f} s" if back is not None else
                                  f"not back in {args.seconds:g} s (distance at the end {dist[-1]:.2f} m)"))
             if kind == "fallen":
-                strip = [tiles[-1][min(steps, s * FPS)] for s in range(6)]
+                strip = [tiles[-1][int(round(i))] for i in np.linspace(0, steps, 6)]
     n = write_video(args.out, (np.concatenate([t[i] for t in tiles], axis=1) for i in range(steps + 1)), fps=FPS)
     still = args.out.with_suffix(".png")
     write_strip(still, strip)
-    print(f"{args.out} ({n} frames, policy {ckpt}); {still} (the fallen start, one frame a second)")
+    print(f"{args.out} ({n} frames, policy {ckpt}); {still} (the fallen start, six frames over the trial)")
 
 
 if __name__ == "__main__":

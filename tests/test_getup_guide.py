@@ -140,3 +140,30 @@ def test_the_guide_on_the_warp_backend_stays_in_torch(guide_clips):
     assert torch.isfinite(obs).all() and isinstance(reward, torch.Tensor) and info["guided"].all()
     assert u.recovery.guide.frame.device == obs.device
     env.close()
+
+
+def test_the_guide_basin_pays_for_nearing_the_getup_shown(guide_clips):
+    from smpl_envs.envs.recovery_rules import GUIDE_BASIN_SCALE
+
+    w = 0.5
+    env = _env(guide_clips, n=4, guide_basin=w, starts={"fallen": 0.5, "reference": 0.5})
+    u = env.unwrapped
+    _, info = env.reset(seed=1)
+    assert info["guided"].any() and not info["guided"].all()  # both kinds of world in one batch
+    _, reward, _, _, info = env.step(np.zeros((4, 69), np.float32))
+    shown = u.recovery._shown[0]
+    d = u.recovery.guide.current().pos - u.sim.bodies.pos
+    want = np.where(shown, w * np.exp(-GUIDE_BASIN_SCALE * (d * d).mean((-1, -2))), 0.0)
+    np.testing.assert_allclose(info["reward_basin"], want, atol=1e-6)
+    assert (info["reward_basin"][shown] > 0.05).all() and (info["reward_basin"][shown] <= w).all()
+    # off by default: no basin term at all, and the reward lower by exactly the basin where shown
+    env2 = _env(guide_clips, n=4, starts={"fallen": 0.5, "reference": 0.5})
+    env2.reset(seed=1)
+    _, reward2, _, _, info2 = env2.step(np.zeros((4, 69), np.float32))
+    assert "reward_basin" not in info2
+    np.testing.assert_allclose(reward - reward2, info["reward_basin"], atol=1e-5)
+    with pytest.raises(ValueError, match="guide_basin rewards nearing a get-up, so it needs getup_guide"):
+        _env(None, guide_basin=w)
+    with pytest.raises(ValueError, match="guide_basin"):
+        _env(guide_clips, guide_basin=-1.0)
+    env.close(), env2.close()

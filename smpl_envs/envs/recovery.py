@@ -295,7 +295,9 @@ class RecoveryVecEnv(ImitationVecEnv):
     fallen_seed (0), recovery_action_base ("reference", "pose", "target" or "pull": module docstring),
     getup_guide (None; get-up clips, e.g. "corpus:getup", shown as the goal of a body down:
     `smpl_envs.envs.getup_guide`), walk_guide (False; True: a walk to the goal shown to a standing
-    body far from it: `smpl_envs.envs.walk_guide`);
+    body far from it: `smpl_envs.envs.walk_guide`), guide_basin (0: off; a reward weight w, with
+    getup_guide: w exp(-10 e) for a body shown a get-up, e its mean squared body coordinate error
+    from the clip, a wide basin around the clip where the imitation terms are ~0);
     and Imitation's (motions: "stand", reward_weights, reward_scales,
     energy_weight, termination_distance, action_mode, residual_scale, core kwargs).
     """
@@ -316,7 +318,7 @@ class RecoveryVecEnv(ImitationVecEnv):
                  recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT, grace_steps=GRACE_STEPS,
                  continue_prob=0.5, far_distance=FAR_DISTANCE, hold_end=True, fallen_cache_size=128,
                  fallen_seed=0, recovery_action_base="reference", getup_guide=None, walk_guide=False,
-                 **kwargs):
+                 guide_basin=0.0, **kwargs):
         if "recovery" in kwargs:
             raise ValueError("recovery: Recovery-v0 always recovers; its settings are its own kwargs")
         recovery = dict(starts=DEFAULT_STARTS if starts is None else starts, switch_distance=switch_distance,
@@ -325,7 +327,7 @@ class RecoveryVecEnv(ImitationVecEnv):
                         continue_prob=continue_prob, far_distance=far_distance, hold_end=hold_end,
                         fallen_cache_size=fallen_cache_size, fallen_seed=fallen_seed,
                         recovery_action_base=recovery_action_base, getup_guide=getup_guide,
-                        walk_guide=walk_guide)
+                        walk_guide=walk_guide, guide_basin=guide_basin)
         super().__init__(num_envs, motions=motions, recovery=recovery, **kwargs)
 
     def regenerate_fallen(self, seed: int | None = None) -> None:

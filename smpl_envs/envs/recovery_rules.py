@@ -28,6 +28,10 @@ POINT_SCALE = 9.0
 POINT_CLIP = 1.0 / 3.0
 RECOVERY_IMITATION_WEIGHT = 0.5
 GRACE_STEPS = 90
+# The get-up basin (`guide_basin`, off by default): the imitation reward's position term is
+# exp(-100 e), e the mean squared body coordinate error, which is ~0 (1e-3) at the 0.4 m a fall
+# leaves a body from the get-up it is shown; this scale keeps it 0.5 there and 0.9 at 0.1 m.
+GUIDE_BASIN_SCALE = 10.0
 FAR_DISTANCE = (2.0, 5.0)
 # What a residual action is added to while the goal shows its recovery form (module docstring of
 # `smpl_envs.envs.recovery`): the reference (as while tracking), the simulated pose, the PD
@@ -107,7 +111,7 @@ class RecoveryController:
                  point_scale=POINT_SCALE, point_clip=POINT_CLIP, recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT,
                  grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
                  fallen_cache_size=128, fallen_seed=0, recovery_action_base="reference", getup_guide=None,
-                 walk_guide=False):
+                 walk_guide=False, guide_basin=0.0):
         self.p = check_starts({"reference": 1.0} if starts is None else starts)
         if recovery_action_base not in ACTION_BASES:
             raise ValueError(f"recovery_action_base must be one of {ACTION_BASES}, got {recovery_action_base!r}")
@@ -140,6 +144,9 @@ class RecoveryController:
             raise ValueError(f"walk_guide must be True or False, got {walk_guide!r}")
         self.walk = _make_walk_guide(env) if walk_guide else None
         self.walk_guide = bool(walk_guide)
+        self.guide_basin = check_number("guide_basin", guide_basin)
+        if self.guide_basin and self.guide is None:
+            raise ValueError("guide_basin rewards nearing a get-up, so it needs getup_guide")
         self._guides = tuple(g for g in (self.guide, self.walk) if g is not None)  # fixed from here on
         self.guided = b.zeros(n, "bool")     # the last observation's goal is a guide's clip (get-up or walk)
         self._shown = [b.zeros(n, "bool") for _ in self._guides]  # ... per guide
@@ -204,10 +211,14 @@ class RecoveryController:
             if guided is not None:
                 terms = {k: (xp.where(guided, guide_terms[k], v) if k != "energy" else v) for k, v in terms.items()}
                 rec = rec | guided  # no termination while a get-up plays
+            if self.guide_basin:
+                terms["basin"] = self._basin(body) if guided is not None else xp.zeros_like(reward)
             terms["point"] = xp.where(rec, point, 0.0)
             reward = sum(terms.values())
         else:
             terms = {**terms, "point": xp.zeros_like(reward)}
+            if self.guide_basin:
+                terms["basin"] = xp.zeros_like(reward)
         self.grace = xp.where(rec, self.grace_steps, (self.grace - 1).clip(min=0))
         terminated = terminated & ~rec & (self.grace == 0)
         if self.continue_prob > 0 and terminated.any():
@@ -218,6 +229,12 @@ class RecoveryController:
         if self.hold_end:
             truncated = xp.zeros_like(truncated)
         return reward, terms, terminated, truncated
+
+    def _basin(self, body):
+        """(N,) the get-up basin term (GUIDE_BASIN_SCALE) for the worlds shown a get-up, 0 elsewhere."""
+        d = self.guide.current().pos - body.pos
+        e = (d * d).sum((-1, -2)) * (1.0 / (3 * d.shape[1]))
+        return self.backend.xp.where(self._shown[0], self.guide_basin * self.backend.xp.exp(-GUIDE_BASIN_SCALE * e), 0.0)
 
     def goal_reference(self, body, ref_next, rng=None):
         """The reference the observation shows (`recovery_reference` beyond switch_distance; with

@@ -281,6 +281,11 @@ def test_evaluation_protocol_runs_and_reports_the_table():
         assert s[f"succ_10s_{kind}"] >= s[f"succ_5s_{kind}"]
     # The PD controllers alone do not walk 3 m: far trials fail.
     assert s["succ_10s_far"] == 0.0 and len(result.rows) == 6
+    # Fallen trials are split by the side they lie on; standing ones are "up".
+    assert {r["lying"] for r in result.rows if r["start"] == "far"} == {"up"}
+    for kind in ("fallen", "fallen+far"):
+        assert {r["lying"] for r in result.rows if r["start"] == kind} <= {"front", "back"}
+        assert sum(s.get(f"trials_{kind}_{side}", 0) for side in ("front", "back")) == 2
     table = result.table()
     assert "Succ-5s" in table and "fallen+far" in table
     assert '"settings"' in result.to_json()
@@ -340,6 +345,17 @@ def test_baselines_example_runs():
     assert "zero, residual, guided" in guided and guided.count("%") == 24
 
 
+def test_lying_at_start_reads_face_down_from_the_pelvis_forward_axis():
+    from smpl_envs.envs.recovery import lying_at_start
+    from smpl_envs.features import rotmat_from_quat
+    from smpl_envs.rotations import quat_from_euler_xyz
+
+    # pitched +90 deg about y the forward axis (x) points down: face down; -90: face up
+    rot = rotmat_from_quat(quat_from_euler_xyz(np.array([[0, np.pi / 2, 0], [0, -np.pi / 2, 0], [0, np.pi / 2, 0]])))
+    pos = np.array([[0, 0, 0.15], [0, 0, 0.15], [0, 0, 0.9]])
+    assert lying_at_start(rot, pos) == ["front", "back", "up"]
+
+
 def test_protocol_measures_from_the_trial_start_to_its_end():
     # End to end on a case with a known answer: from the reference state of the standing clip,
     # the PD controllers alone (zero residual) stand for a moment, then fall (measured: within
@@ -350,8 +366,8 @@ def test_protocol_measures_from_the_trial_start_to_its_end():
     options = proto.check_options({"trials": 2, "hold_seconds": 0.2})
     env = proto.make_env(ID, None, 2, {"action_mode": "residual", **SMALL}, False, options)
     assert env.max_episode_steps == 306
-    dist, broke = _run_wave(lambda obs: np.zeros((len(obs), 69)), env, "reference", 0, env.max_episode_steps)
-    assert dist.shape == (2, 307) and not broke.any() and np.isfinite(dist).all()
+    dist, broke, lying = _run_wave(lambda obs: np.zeros((len(obs), 69)), env, "reference", 0, env.max_episode_steps)
+    assert dist.shape == (2, 307) and not broke.any() and np.isfinite(dist).all() and lying == ["up", "up"]
     assert (dist[:, :10] < 0.2).all() and (dist[:, -1] > 0.5).all()
     assert recovery_frame(dist, 0.5).tolist() == [-1, -1]
     assert recovery_frame(dist[:, :10], 0.5).tolist() == [0, 0]

@@ -107,6 +107,7 @@ from .. import metrics
 from ..metrics import recovered_within, recovery_frame  # noqa: F401 (also this module's API)
 from ..evaluation import EvalProtocol, EvalResult, check_disabled_autoreset, policy_actions
 from ..progress import pbar
+from .getup_guide import DOWN_HEIGHT
 from .imitation import ImitationVecEnv
 # The rules live in their own module (the imitation env runs them too); their names stay part of
 # this module's API.
@@ -136,6 +137,11 @@ class RecoveryResult(EvalResult):
             if f"trials_{kind}" in s:
                 lines.append(f"  {kind:<12}{s[f'trials_{kind}']:>8}{100 * s[f'succ_5s_{kind}']:>9.1f}%"
                              f"{100 * s[f'succ_10s_{kind}']:>9.1f}%{s[f'final_distance_{kind}']:>10.2f}")
+        for kind in ("fallen", "fallen+far"):
+            split = [f"{side} {100 * s[f'succ_10s_{kind}_{side}']:.1f}% of {s[f'trials_{kind}_{side}']}"
+                     for side in ("front", "back") if f"trials_{kind}_{side}" in s]
+            if split:
+                lines.append(f"  {kind} Succ-10s by the side it lies on: " + ", ".join(split))
         lines.append("  final m: median mean body distance at the trial's end (progress short of success)")
         lines.append(f"  score {s['score']:.4f}")
         return "\n".join(lines)
@@ -158,7 +164,8 @@ class RecoveryProtocol(EvalProtocol):
       <= 150 (5 s); Succ-10s: <= 300 (`recovery_frame`, `recovered_within`).
     * Summary: per kind, trials_<kind>, succ_5s_<kind>, succ_10s_<kind> (fractions),
       final_distance_<kind> (the median mean body distance at the trial's end, m: how far short
-      of success a policy stays), and `score`
+      of success a policy stays), for fallen and fallen+far also trials_<kind>_<side> and
+      succ_10s_<kind>_<side> by the side the body lies on at the start (front / back), and `score`
       (their mean over the kinds and the two horizons), which ranks checkpoints.
     """
 
@@ -223,10 +230,10 @@ class RecoveryProtocol(EvalProtocol):
                 done = 0
                 for wave in range(-(-options["trials"] // n)):
                     count = min(n, options["trials"] - done)
-                    dist, broke = _run_wave(policy, env, kind, options["seed"] + 10000 * i + wave, limit)
+                    dist, broke, lying = _run_wave(policy, env, kind, options["seed"] + 10000 * i + wave, limit)
                     frames = recovery_frame(dist[:count], options["threshold"])
                     for k in range(count):
-                        rows.append({"start": kind, "recovery_frame": int(frames[k]),
+                        rows.append({"start": kind, "lying": lying[k], "recovery_frame": int(frames[k]),
                                      "succ_5s": bool(recovered_within(frames[k], 5.0)),
                                      "succ_10s": bool(recovered_within(frames[k], 10.0)),
                                      "diverged": bool(broke[k]), "final_distance": float(dist[k, -1])})
@@ -252,16 +259,23 @@ def summarize_recovery(rows: list[dict]) -> dict:
                 rates.append(rate)
             # Median: a diverged trial's distance is inf; it counts as far, not as a NaN mean.
             summary[f"final_distance_{kind}"] = float(np.median([r["final_distance"] for r in mine]))
+            for side in ("front", "back"):  # fallen starts by the side they lie on (`lying_at_start`)
+                some = [r for r in mine if r.get("lying") == side]
+                if some and "fallen" in kind:
+                    summary[f"trials_{kind}_{side}"] = len(some)
+                    summary[f"succ_10s_{kind}_{side}"] = float(np.mean([r["succ_10s"] for r in some]))
     summary["score"] = float(np.mean(rates)) if rates else 0.0
     return summary
 
 
 def _run_wave(policy, env, kind: str, seed: int, limit: int):
     """(n, limit + 1) mean body distances of one wave of trials from `kind` starts, and the
-    (n,) mask of diverged worlds (their distance is inf from the divergence on)."""
+    (n,) mask of diverged worlds (their distance is inf from the divergence on), and how each
+    world lies at the start (`lying_at_start`)."""
     u = getattr(env, "unwrapped", env)
     n = u.num_envs
     obs, info = env.reset(seed=seed, options={"recovery_start": kind, "start": "beginning"})
+    lying = lying_at_start(u.backend.to_numpy(u.sim.bodies.rot[:, 0]), u.backend.to_numpy(u.sim.bodies.pos[:, 0]))
     obs = np.array(obs, copy=True)
     dist = np.full((n, limit + 1), np.inf)
     dist[:, 0] = _distance(info)
@@ -276,7 +290,16 @@ def _run_wave(policy, env, kind: str, seed: int, limit: int):
         dist[alive, t] = _distance(info)[alive]
         if not alive.any() or np.asarray(truncated, bool)[alive].all():
             break
-    return dist, broke
+    return dist, broke, lying
+
+
+def lying_at_start(pelvis_rot, pelvis_pos) -> list[str]:
+    """Per world, "front" (face down) or "back" (face up) for a pelvis below DOWN_HEIGHT, by the
+    sign of the height of its forward axis (the get-up guide's rule), else "up": a fall onto the
+    back needs another get-up than one onto the front, and the split says which one fails."""
+    down = np.asarray(pelvis_pos)[:, 2] < DOWN_HEIGHT
+    face_down = np.asarray(pelvis_rot)[:, 2, 0] < 0
+    return ["up" if not d else ("front" if f else "back") for d, f in zip(down, face_down)]
 
 
 def _distance(info) -> np.ndarray:

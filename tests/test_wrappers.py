@@ -228,8 +228,11 @@ def test_masked_and_nested_info_keys_follow_gymnasium_conventions(make):
     # "_episode" mask: world i's dict carries "episode" only where the mask is set.
     from gymnasium.wrappers.vector import RecordEpisodeStatistics
 
+    # From a clip's first frame, so that the 3-step limit is the only way an episode ends (a
+    # random start frame within 3 frames of the clip's end truncates it sooner).
     native = RecordEpisodeStatistics(gym.make_vec(ENV_ID, num_envs=3, autoreset_mode="SameStep",
-                                                  max_episode_steps=3, termination_distance=None))
+                                                  max_episode_steps=3, termination_distance=None,
+                                                  start="beginning"))
     venv = make(native, num_envs=None)
     venv.reset()
     for _ in range(3):

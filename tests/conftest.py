@@ -10,6 +10,11 @@ from smpl_envs.humanoid import NUM_BODIES
 from smpl_envs.motion import RawMotion
 from smpl_envs.rotations import quat_from_euler_xyz, yaw_quat
 
+# The device the MuJoCo Warp tests (test_sim_warp, test_env_warp; skipped without the gpu extra)
+# run on: Warp's CPU device by default, so they need no GPU; SMPL_ENVS_WARP_DEVICE=cuda runs the
+# same tests on one.
+WARP_DEVICE = os.environ.get("SMPL_ENVS_WARP_DEVICE", "cpu")
+
 
 @pytest.fixture(scope="module", autouse=True)
 def _restore_torch_threads():
@@ -125,13 +130,13 @@ def step_backends_alike(warp_env, cpu_env, steps: int = 10, scale: float = 0.3, 
         oc, rc, tc, uc, ic = cpu_env.step(a)
         assert isinstance(ow, torch.Tensor) and ow.shape == oc.shape
         t = tol(k)
-        assert np.abs(ow.numpy() - oc).max() < t, k
-        assert np.abs(rw.numpy() - rc).max() < t, k
+        assert np.abs(ow.cpu().numpy() - oc).max() < t, k
+        assert np.abs(rw.cpu().numpy() - rc).max() < t, k
         assert tw.tolist() == tc.tolist() and uw.tolist() == uc.tolist(), k
         for key in info_keys:
-            assert np.abs(iw[key].numpy() - ic[key]).max() < 10 * t, (k, key)
+            assert np.abs(iw[key].cpu().numpy() - ic[key]).max() < 10 * t, (k, key)
         if "motion_id" in ic:
-            np.testing.assert_array_equal(iw["motion_id"].numpy(), ic["motion_id"])
-            np.testing.assert_allclose(iw["motion_time"].numpy(), ic["motion_time"], atol=1e-6)
+            np.testing.assert_array_equal(iw["motion_id"].cpu().numpy(), ic["motion_id"])
+            np.testing.assert_allclose(iw["motion_time"].cpu().numpy(), ic["motion_time"], atol=1e-6)
         ended += int(tc.sum())
     return ended

@@ -1,7 +1,8 @@
 """Tasks on the MuJoCo Warp backend (`gym.make_vec(id, backend="warp", device=...)`), run on
-Warp's CPU device: torch-native outputs, parity with the CPU backend, seeding, divergence
-isolation, partial resets, both autoreset modes, the env checker through `gym.make`, PPO with its
-rollout kept in torch, and a clear error for the tasks not ported yet.
+Warp's CPU device (on a GPU with SMPL_ENVS_WARP_DEVICE=cuda): torch-native outputs, parity with
+the CPU backend, seeding, divergence isolation, partial resets, both autoreset modes, the env
+checker through `gym.make`, PPO with its rollout kept in torch, and a clear error for the tasks not
+ported yet.
 
 Parity tolerance: the env on MuJoCo Warp computes in float32, the CPU one in float64 (physics and
 task math). From the walk clip's first frame with small actions, observations agree to ~1e-5 for
@@ -20,7 +21,7 @@ import gymnasium as gym  # noqa: E402
 import smpl_envs  # noqa: E402
 import smpl_envs.policy_settings  # noqa: E402
 
-from conftest import check_env_quietly, step_backends_alike  # noqa: E402
+from conftest import WARP_DEVICE, check_env_quietly, step_backends_alike  # noqa: E402
 
 N = 4
 BEGIN = {"motion_ids": [0] * N, "start": "beginning"}
@@ -29,7 +30,7 @@ BEGIN = {"motion_ids": [0] * N, "start": "beginning"}
 def make(env_id="SMPL/Imitation-v0", backend="warp", **kw):
     kw = {"motions": "walk", "action_mode": "residual", **kw}
     if backend == "warp":
-        kw["device"] = "cpu"
+        kw["device"] = WARP_DEVICE
     else:
         kw["num_threads"] = 1
     return gym.make_vec(env_id, num_envs=kw.pop("num_envs", N), backend=backend, **kw)
@@ -47,7 +48,7 @@ def test_parity_with_the_cpu_backend(env_id):
     w, c = make(env_id), make(env_id, backend="cpu")
     ow, _ = w.reset(seed=0, options=BEGIN)
     oc, _ = c.reset(seed=0, options=BEGIN)
-    assert np.abs(ow.numpy() - oc).max() < 1e-4
+    assert np.abs(ow.cpu().numpy() - oc).max() < 1e-4
     step_backends_alike(w, c, info_keys=("body_pos", "ref_body_pos", "reward_pos", "amp_obs"))
     w.close()
     c.close()
@@ -56,7 +57,7 @@ def test_parity_with_the_cpu_backend(env_id):
 def test_outputs_are_torch_tensors_on_the_device(env):
     obs, info = env.reset(seed=1)
     assert isinstance(obs, torch.Tensor) and obs.dtype == torch.float32 and obs.shape == (N, 934)
-    assert env.metadata["backend"] == "warp" and env.metadata["device"] == "cpu"
+    assert env.metadata["backend"] == "warp" and torch.device(env.metadata["device"]).type == torch.device(WARP_DEVICE).type
     obs, reward, terminated, truncated, info = env.step(torch.zeros(N, 69))
     assert reward.dtype == torch.float32 and reward.shape == (N,)
     assert terminated.dtype == torch.bool and truncated.dtype == torch.bool
@@ -68,7 +69,7 @@ def test_outputs_are_torch_tensors_on_the_device(env):
 def test_zero_residual_action_gives_the_reference_pd_targets(env):
     env.reset(seed=2)
     ref = env.unwrapped.reference_action() if hasattr(env, "unwrapped") else env.reference_action()
-    assert isinstance(ref, torch.Tensor) and torch.equal(ref, torch.zeros(N, 69))
+    assert isinstance(ref, torch.Tensor) and torch.equal(ref, torch.zeros(N, 69, device=ref.device))
     targets = env._ctrl(torch.zeros(N, 69))
     expected = env.motion_frames.dof_pos[env.ref.next_frame()]
     assert torch.allclose(targets, expected.clip(-env.action_scale, env.action_scale))
@@ -133,11 +134,11 @@ def test_same_step_autoreset_reports_final_observations():
 def test_env_checker_through_gym_make():
     # From the clip's first frame: the checker fails an env that truncates after one step, and
     # its seed 123 happens to draw the walk clip's last-but-one frame on this backend.
-    env = gym.make("SMPL/Imitation-v0", motions="walk", backend="warp", device="cpu", start="beginning")
+    env = gym.make("SMPL/Imitation-v0", motions="walk", backend="warp", device=WARP_DEVICE, start="beginning")
     check_env_quietly(env)
     obs, info = env.reset(seed=0)
     assert isinstance(obs, np.ndarray) and obs.dtype == np.float32  # the one-world API speaks NumPy
-    frame = gym.make("SMPL/Imitation-v0", motions="walk", backend="warp", device="cpu",
+    frame = gym.make("SMPL/Imitation-v0", motions="walk", backend="warp", device=WARP_DEVICE,
                      render_mode="rgb_array", render_size=(64, 48))
     frame.reset(seed=0)
     assert frame.render().shape == (48, 64, 3)
@@ -158,7 +159,7 @@ def test_failure_sampling_on_the_device():
 def test_ppo_keeps_its_rollout_in_torch(env):
     from agents import PPO
 
-    model = PPO(env, n_steps=8, batch_size=16, n_epochs=1, seed=0, verbose=0, tensorboard=False, device="cpu",
+    model = PPO(env, n_steps=8, batch_size=16, n_epochs=1, seed=0, verbose=0, tensorboard=False, device=WARP_DEVICE,
                 actor_hidden=[32], critic_hidden=[32])
     model.learn(8 * N * 2, progress_bar=False)
     assert model.num_timesteps == 64 and model._collector.native
@@ -179,7 +180,7 @@ def test_goal_task_parity_with_the_cpu_backend(env_id):
     (targets, observations, rewards, info), and foot contacts make float32 and float64 physics
     part within a step or two (`test_sim_warp`)."""
     kw = {"max_episode_steps": 300}
-    w = gym.make_vec(env_id, num_envs=N, backend="warp", device="cpu", **kw)
+    w = gym.make_vec(env_id, num_envs=N, backend="warp", device=WARP_DEVICE, **kw)
     c = gym.make_vec(env_id, num_envs=N, num_threads=1, **kw)
     w.reset(seed=0)
     c.reset(seed=0)
@@ -208,7 +209,7 @@ def test_a_task_without_the_warp_backend_refuses_it_by_name():
         pass
 
     with pytest.raises(ValueError, match="NumpyOnly runs on backend 'cpu'"):
-        NumpyOnly(1, backend="warp", device="cpu")
+        NumpyOnly(1, backend="warp", device=WARP_DEVICE)
 
 
 def test_unknown_backend_and_device_errors():
@@ -222,7 +223,7 @@ def test_evaluation_protocol_runs_on_the_warp_backend():
     def zero(obs):
         return np.zeros((len(obs), 69), np.float32)
 
-    kwargs = {"action_mode": "residual", "backend": "warp", "device": "cpu"}
+    kwargs = {"action_mode": "residual", "backend": "warp", "device": WARP_DEVICE}
     warp = smpl_envs.evaluate(zero, "SMPL/Imitation-v0", motions="stand", num_envs=1, progress=False, env_kwargs=kwargs)
     cpu = smpl_envs.evaluate(zero, "SMPL/Imitation-v0", motions="stand", num_envs=1, progress=False,
                              env_kwargs={"action_mode": "residual"})
@@ -241,7 +242,7 @@ def test_the_warp_benchmark_runs(tmp_path):
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_warp.py"
-    out = subprocess.run([sys.executable, str(script), "--device", "cpu", "--worlds", "2", "--steps", "2",
+    out = subprocess.run([sys.executable, str(script), "--device", WARP_DEVICE, "--worlds", "2", "--steps", "2",
                           "--repeats", "1", "--cpu-max", "2", "--train-iterations", "1", "--json", str(tmp_path / "b.json")],
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
@@ -259,7 +260,7 @@ def test_every_task_runs_on_the_warp_backend(env_id):
     """make_vec on the backend, torch outputs of the CPU env's shapes, NaN isolation, and the env
     checker through gym.make (from a clip's first frame where the task has clips: see above)."""
     kw = {"terrain_size": (2, 2), "tile_size": 6.0} if env_id == "SMPL/Terrain-v0" else {}
-    env = gym.make_vec(env_id, num_envs=2, backend="warp", device="cpu", **kw)
+    env = gym.make_vec(env_id, num_envs=2, backend="warp", device=WARP_DEVICE, **kw)
     cpu = gym.make_vec(env_id, num_envs=2, num_threads=1, **kw)
     obs, info = env.reset(seed=0)
     assert isinstance(obs, torch.Tensor) and obs.shape == cpu.reset(seed=0)[0].shape
@@ -270,7 +271,7 @@ def test_every_task_runs_on_the_warp_backend(env_id):
     assert torch.isfinite(obs).all() and reward.dtype == torch.float32
     env.close()
     cpu.close()
-    single = gym.make(env_id, backend="warp", device="cpu", start="beginning", **kw)
+    single = gym.make(env_id, backend="warp", device=WARP_DEVICE, start="beginning", **kw)
     check_env_quietly(single)
     single.close()
 
@@ -278,7 +279,7 @@ def test_every_task_runs_on_the_warp_backend(env_id):
 def test_amp_trains_on_the_warp_backend(env):
     from agents import AMP
 
-    model = AMP(env, n_steps=8, batch_size=16, n_epochs=1, seed=0, verbose=0, tensorboard=False, device="cpu",
+    model = AMP(env, n_steps=8, batch_size=16, n_epochs=1, seed=0, verbose=0, tensorboard=False, device=WARP_DEVICE,
                 actor_hidden=[32], critic_hidden=[32], disc_hidden=[32])
     model.learn(8 * N * 2, progress_bar=False)
     assert model.num_timesteps == 64 and model._collector.native
@@ -306,7 +307,7 @@ def test_the_warp_example_runs():
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[1] / "examples" / "warp_backend.py"
-    out = subprocess.run([sys.executable, str(script), "--device", "cpu", "--worlds", "2", "--steps", "3"],
+    out = subprocess.run([sys.executable, str(script), "--device", WARP_DEVICE, "--worlds", "2", "--steps", "3"],
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "step  3: max |obs warp - obs cpu|" in out.stdout and "PPO: 32 steps" in out.stdout

@@ -170,15 +170,55 @@ def make_backend(backend: str, device: Any = None):
             raise ValueError(f"device={device!r} needs backend='warp' (the CPU backend runs on the host)")
         return NumpyBackend()
     if backend == "warp":
-        try:
-            import warp  # noqa: F401
-            import mujoco_warp  # noqa: F401
-        except ImportError as e:  # the reason is in the message; its traceback would only repeat it
-            raise MissingExtraError(f"backend='warp' needs MuJoCo Warp: pip install 'smpl-envs[gpu]' ({e})") from None
-        import warp as wp
-
-        wp.init()
+        wp = _warp()
         if device is None:
             device = "cuda" if wp.is_cuda_available() else "cpu"
+        problem = warp_device_problem(device)
+        if problem is not None:
+            raise ValueError(f"device={device!r}: {problem}")
         return TorchBackend(device)
     raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+
+
+def _warp():
+    """Warp, initialised; MissingExtraError naming the extra where MuJoCo Warp is not installed."""
+    try:
+        import warp as wp
+        import mujoco_warp  # noqa: F401
+    except ImportError as e:  # the reason is in the message; its traceback would only repeat it
+        raise MissingExtraError(f"backend='warp' needs MuJoCo Warp: pip install 'smpl-envs[gpu]' ({e})") from None
+    wp.init()
+    return wp
+
+
+def warp_device_problem(device) -> str | None:
+    """Why MuJoCo Warp cannot run on `device` on this machine, or None when it can."""
+    try:
+        wp = _warp()
+    except MissingExtraError as e:
+        return str(e)
+    if str(device).startswith("cuda") and not wp.is_cuda_available():  # asking Warp would print CUDA errors
+        return "Warp sees no CUDA device on this machine"
+    try:
+        wp.get_device(str(device))
+    except Exception as e:  # Warp raises its own error types for unknown devices
+        return f"not a device Warp knows ('cpu', 'cuda', 'cuda:0' ...): {e}"
+    return None
+
+
+def runnable_here(env_kwargs: dict, what: str = "the run") -> dict:
+    """A recorded run's env kwargs for this machine. The backend and device say where the
+    physics ran, not how the policy acts, so a run trained on a GPU evaluates and records on a
+    machine without one: there a warp backend whose device is missing becomes the CPU backend,
+    with a warning that says so (float64 physics instead of float32: the same model)."""
+    if env_kwargs.get("backend", "cpu") != "warp":
+        return env_kwargs
+    device = env_kwargs.get("device")  # None: CUDA where there is one, else Warp's CPU device
+    problem = warp_device_problem("cpu" if device is None else device)
+    if problem is None:
+        return env_kwargs
+    import warnings
+
+    warnings.warn(f"{what} ran on backend='warp', device={device!r}, which this machine lacks ({problem}); "
+                  "running it on the CPU backend", stacklevel=2)
+    return {k: v for k, v in env_kwargs.items() if k not in ("backend", "device")}

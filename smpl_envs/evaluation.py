@@ -49,6 +49,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 from . import metrics
+from .backend import runnable_here
 from .progress import pbar
 
 # Env kwargs that only make sense for the env an evaluation builds itself.
@@ -116,11 +117,12 @@ class EvalProtocol:
         """Env kwargs of a training run that carry over to its evaluation (reward weights,
         substeps, action mode ...)."""
         drop = set(self.train_only_kwargs) | set(_VEC_ONLY) | set(_MOTION_KWARGS)
-        return {k: v for k, v in train_kwargs.items() if k not in drop}
+        return runnable_here({k: v for k, v in train_kwargs.items() if k not in drop}, "the policy's training")
 
     def record_kwargs(self, train_kwargs: dict) -> dict:
         """Env kwargs for a video of a training run's policy (one world, as in training)."""
-        return {k: v for k, v in train_kwargs.items() if k not in set(_VEC_ONLY) | set(_MOTION_KWARGS)}
+        return runnable_here({k: v for k, v in train_kwargs.items() if k not in set(_VEC_ONLY) | set(_MOTION_KWARGS)},
+                             "the policy's training")
 
     def run(self, policy: Callable, env, options: dict, progress: bool) -> EvalResult:
         raise NotImplementedError

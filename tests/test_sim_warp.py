@@ -28,7 +28,7 @@ from smpl_envs.humanoid.builder import build_spec, humanoid_addresses  # noqa: E
 from smpl_envs.motion.library import MotionLib  # noqa: E402
 from smpl_envs.sim import CPUSim, WarpSim, to_numpy  # noqa: E402
 
-from conftest import WARP_DEVICE  # noqa: E402
+from conftest import WARP_DEVICE, warp_same  # noqa: E402
 
 N = 4
 
@@ -70,7 +70,7 @@ def _snapshot(sim):
 
 
 def _equal(a, b):
-    return all(torch.equal(x, y) for x, y in zip(a, b))
+    return warp_same(list(a), list(b))
 
 
 def test_import_of_sim_does_not_import_warp():

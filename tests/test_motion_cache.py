@@ -175,3 +175,20 @@ def test_failed_save_leaves_nothing_behind(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="No space left"):
         lib.save(tmp_path / "lib")
     assert not list(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------- a cached library on a device
+def test_a_cached_library_goes_to_a_torch_device_as_writable_copies(tree, tmp_path):
+    # A cached library is memory-mapped read-only: torch warned on every view of it, and a view
+    # on the host would have written into the cache.
+    torch = pytest.importorskip("torch")
+    from smpl_envs.motion.library import DeviceFrames
+
+    _quiet_load(tree, cache=tmp_path / "c")
+    lib = _quiet_load(tree, cache=tmp_path / "c")
+    assert not np.asarray(lib.dof_pos).flags.writeable
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        frames = DeviceFrames(lib, torch.device("cpu"))
+    frames.dof_pos += 1.0
+    np.testing.assert_allclose(frames.dof_pos.numpy() - 1.0, lib.dof_pos, atol=1e-6)

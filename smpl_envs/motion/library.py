@@ -507,8 +507,8 @@ class DeviceFrames:
 
         self.lib, self.fps, self.num_motions = lib, lib.fps, lib.num_motions
         dtype = getattr(torch, self.dtype) if self.dtype else None
-        for name in self.fields:
-            setattr(self, name, torch.as_tensor(getattr(lib, name), dtype=dtype, device=device))
+        for name in self.fields:  # copies: a cached library's arrays are read-only memory maps
+            setattr(self, name, torch.tensor(getattr(lib, name), dtype=dtype, device=device))
         self.starts = torch.as_tensor(lib.starts, dtype=torch.int64, device=device)
         self.lengths = torch.as_tensor(lib.lengths, dtype=torch.int64, device=device)
 

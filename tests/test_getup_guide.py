@@ -18,6 +18,8 @@ from smpl_envs.motion import MotionLib
 from smpl_envs.motion.getup import getup
 from smpl_envs.rotations import quat_from_euler_xyz
 
+from conftest import WARP_DEVICE
+
 
 @pytest.fixture(scope="module")
 def guide_clips():
@@ -129,7 +131,7 @@ def test_the_guide_on_the_warp_backend_stays_in_torch(guide_clips):
     import torch
 
     env = gym.make_vec("SMPL/Recovery-v0", num_envs=2, getup_guide=guide_clips, action_mode="residual",
-                       fallen_cache_size=16, starts={"fallen": 1.0}, backend="warp", device="cpu")
+                       fallen_cache_size=16, starts={"fallen": 1.0}, backend="warp", device=WARP_DEVICE)
     u = env.unwrapped
     obs, info = env.reset(seed=0)
     assert isinstance(info["guided"], torch.Tensor) and info["guided"].all()

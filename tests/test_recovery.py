@@ -16,7 +16,7 @@ from smpl_envs.envs.fallen import generate_fallen_states
 from smpl_envs.envs.recovery import (START_KINDS, check_starts, point_reward, recovered_within,
                                      recovery_frame, recovery_reference)
 from smpl_envs.features import BodyState, heading_rotation, to_heading, tracking_obs
-from conftest import check_env_quietly, seeded_rollouts
+from conftest import WARP_DEVICE, check_env_quietly, seeded_rollouts
 
 ID = "SMPL/Recovery-v0"
 SMALL = {"fallen_cache_size": 16}  # a small fallen set keeps the tests quick (memoised across envs)
@@ -382,7 +382,7 @@ KINDS4 = list(START_KINDS)  # reference, fallen, far, fallen+far: one world each
 
 def _warp_vec(env_id=ID, n=4, backend="warp", **kwargs):
     kwargs = {"motions": "walk", "action_mode": "residual", **SMALL, **kwargs}
-    kwargs.update({"device": "cpu"} if backend == "warp" else {"num_threads": 1})
+    kwargs.update({"device": WARP_DEVICE} if backend == "warp" else {"num_threads": 1})
     if env_id != ID:
         kwargs.pop("fallen_cache_size")
     return gym.make_vec(env_id, num_envs=n, backend=backend, **kwargs)
@@ -403,11 +403,11 @@ def test_warp_backend_matches_the_cpu_backend_from_the_same_starts():
     options = {"recovery_start": KINDS4, "motion_ids": [0] * 4, "start": "beginning"}
     _, iw = w.reset(seed=0, options=options)
     _, ic = c.reset(seed=0, options=options)
-    np.testing.assert_array_equal(iw["start_kind"].numpy(), ic["start_kind"])
+    np.testing.assert_array_equal(iw["start_kind"].cpu().numpy(), ic["start_kind"])
     assert iw["recovering"].tolist() == ic["recovering"].tolist() == [False, True, True, True]
     w.sim.set_state(torch.arange(4), c.sim.qpos, c.sim.qvel)
     w.recovery.root_distance[:] = torch.as_tensor(c.recovery.root_distance)
-    np.testing.assert_array_equal(w.recovery.grace.numpy(), c.recovery.grace)
+    np.testing.assert_array_equal(w.recovery.grace.cpu().numpy(), c.recovery.grace)
     rng = np.random.default_rng(0)
     continued = False
     for k in range(10):
@@ -415,13 +415,13 @@ def test_warp_backend_matches_the_cpu_backend_from_the_same_starts():
         ow, rw, tw, uw, iw = w.step(torch.as_tensor(a))
         oc, rc, tc, uc, ic = c.step(a)
         tol = 1e-3 if k < 3 else 1e-2
-        assert np.abs(ow.numpy() - oc).max() < tol, k
-        assert np.abs(rw.numpy() - rc).max() < tol, k
-        assert np.abs(iw["reward_point"].numpy() - ic["reward_point"]).max() < tol, k
-        np.testing.assert_allclose(iw["root_distance"].numpy(), ic["root_distance"], atol=tol)
+        assert np.abs(ow.cpu().numpy() - oc).max() < tol, k
+        assert np.abs(rw.cpu().numpy() - rc).max() < tol, k
+        assert np.abs(iw["reward_point"].cpu().numpy() - ic["reward_point"]).max() < tol, k
+        np.testing.assert_allclose(iw["root_distance"].cpu().numpy(), ic["root_distance"], atol=tol)
         assert tw.tolist() == tc.tolist() and uw.tolist() == uc.tolist(), k
         assert iw["recovering"].tolist() == ic["recovering"].tolist(), k
-        np.testing.assert_array_equal(w.recovery.grace.numpy(), c.recovery.grace)
+        np.testing.assert_array_equal(w.recovery.grace.cpu().numpy(), c.recovery.grace)
         continued |= bool(c.recovery.grace[0] == 2 and not ic["recovering"][0])  # a termination went on
     assert continued
     w.close()
@@ -443,7 +443,7 @@ def test_far_and_fallen_starts_on_the_warp_backend_stay_in_torch():
     d = torch.linalg.norm(body.pos[:, 0, :2] - ref_root[:, :2], dim=-1)
     assert d[0] < 1e-5 and 2.0 - 1e-4 <= d[2] <= 5.0 + 1e-4  # reference, far
     assert (body.pos[[1, 3], 0, 2] < 0.5).all() and d[1] < 1.0 and d[3] > 1.0  # fallen (and far)
-    assert torch.equal(env.sim.qvel[[1, 3]][:, u.humanoid.qvel], torch.zeros(2, 75))  # fallen: at rest
+    assert not env.sim.qvel[[1, 3]][:, u.humanoid.qvel].any()  # fallen: at rest
     torch.testing.assert_close(info["root_distance"], torch.linalg.norm(body.pos[:, 0] - ref_root, dim=-1),
                                atol=1e-5, rtol=0)
     assert info["root_distance"][2] > 2.0 - 1e-4
@@ -460,7 +460,7 @@ def test_far_and_fallen_starts_on_the_warp_backend_stay_in_torch():
     u.regenerate_fallen(seed=7)
     placed = u.recovery.fallen.place(u.np_random, torch.zeros(3, 2))
     assert isinstance(placed, torch.Tensor) and placed.shape == (3, 76)
-    assert any(np.allclose(placed[0].numpy(), s, atol=1e-6) for s in u.recovery.fallen.states)
+    assert any(np.allclose(placed[0].cpu().numpy(), s, atol=1e-6) for s in u.recovery.fallen.states)
     env.close()
 
 

@@ -15,7 +15,7 @@ import smpl_envs
 from smpl_envs.envs.terrain import MAP_OFFSETS, height_map, make_paths, path_at, path_reward
 from smpl_envs.humanoid import BODY_NAMES
 from smpl_envs.terrain import DEFAULT_SHARES, SPACING, TERRAIN_TYPES, Terrain, make_terrain, stair_height
-from conftest import check_env_quietly, seeded_rollouts
+from conftest import WARP_DEVICE, check_env_quietly, seeded_rollouts, warp_same
 
 ENV_ID = "SMPL/Terrain-v0"
 OBS_DIM = 358 + 20 + 1024
@@ -295,7 +295,7 @@ WORLDS = 3
 
 
 def _make(backend):
-    extra = dict(device="cpu") if backend == "warp" else dict(num_threads=1)
+    extra = dict(device=WARP_DEVICE) if backend == "warp" else dict(num_threads=1)
     return gym.make_vec(ENV_ID, num_envs=WORLDS, backend=backend, autoreset_mode="Disabled", **TINY, **extra)
 
 
@@ -343,11 +343,11 @@ def test_warp_backend_agrees_with_the_cpu_backend(warp_env):
         a = rng.uniform(-0.2, 0.2, (WORLDS, 69)).astype(np.float32)
         ow, rw, tw, uw, iw = w.step(torch.as_tensor(a))
         oc, rc, tc, uc, ic = c.step(a)
-        assert np.abs(ow.numpy() - oc).max() < 1e-3, k
-        assert np.abs(rw.numpy() - rc).max() < 1e-4, k
+        assert np.abs(ow.cpu().numpy() - oc).max() < 1e-3, k
+        assert np.abs(rw.cpu().numpy() - rc).max() < 1e-4, k
         assert tw.tolist() == tc.tolist() and uw.tolist() == uc.tolist()
         for key in ("path_error", "path_point", "path_length"):
-            assert np.abs(iw[key].numpy() - ic[key]).max() < 1e-4, key
+            assert np.abs(iw[key].cpu().numpy() - ic[key]).max() < 1e-4, key
         assert iw["start_tile"].tolist() == ic["start_tile"].tolist()
     # On the terrain, from one state: world 1 lies on its back on its platform, world 2's path
     # jumped 5 m away; the task's reads of that state agree, terminations included.
@@ -374,11 +374,13 @@ def test_warp_backend_agrees_with_the_cpu_backend(warp_env):
     lib = c.motion_lib
     frames = np.arange(0, len(lib.body_pos), 7)[:40]
     pos, quat = lib.body_pos[frames], lib.body_quat[frames]
-    low = lowest_point(torch.as_tensor(pos), torch.as_tensor(quat), MEAN_SKELETON, w._support).numpy()
+    dev = w._support[0].device
+    low = lowest_point(torch.as_tensor(pos, device=dev), torch.as_tensor(quat, device=dev), MEAN_SKELETON,
+                       w._support).cpu().numpy()
     np.testing.assert_allclose(low, lowest_point(pos, quat, MEAN_SKELETON), atol=1e-5)
     xy = np.random.default_rng(1).uniform(-9, 9, (50, 2))
     for mode in ("bilinear", "min", "max", "dilated"):
-        np.testing.assert_allclose(w.ground(torch.as_tensor(xy, dtype=torch.float32), mode).numpy(),
+        np.testing.assert_allclose(w.ground(torch.as_tensor(xy, dtype=torch.float32, device=dev), mode).cpu().numpy(),
                                    c.ground(xy, mode), atol=1e-5)
     c.close()
 
@@ -427,7 +429,7 @@ def test_warp_same_seed_same_episodes_and_partial_resets(warp_env):
         return torch.stack(out), w.path.clone()
 
     (a, pa), (b, pb), (c, pc) = run(5), run(5), run(6)
-    assert torch.equal(a, b) and torch.equal(pa, pb)
+    assert warp_same(a, b) and torch.equal(pa, pb)
     assert not torch.allclose(a, c) and not torch.allclose(pa, pc)
     # A masked reset redraws only the masked worlds' starts and paths.
     before = w.path.clone()

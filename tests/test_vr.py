@@ -19,7 +19,7 @@ from smpl_envs.humanoid import BODY_NAMES
 from smpl_envs.motion import MotionFileError, MotionLib
 from smpl_envs.motion.three_point import (TRACKED, ThreePointStream, load_stream, write_stream)
 from smpl_envs.rotations import quat_to_matrix
-from conftest import check_env_quietly, seeded_rollouts, step_backends_alike
+from conftest import WARP_DEVICE, check_env_quietly, seeded_rollouts, step_backends_alike
 
 ID = "SMPL/VRTracking-v0"
 GOAL = slice(358, 430)
@@ -315,7 +315,7 @@ warp = pytest.mark.skipif(importlib.util.find_spec("mujoco_warp") is None,
 
 def _pair(**kwargs):
     """The same env on the warp backend (Warp's CPU device) and on the CPU one."""
-    return _vec(backend="warp", device="cpu", **kwargs), _vec(num_threads=1, **kwargs)
+    return _vec(backend="warp", device=WARP_DEVICE, **kwargs), _vec(num_threads=1, **kwargs)
 
 
 @warp
@@ -329,7 +329,7 @@ def test_warp_backend_matches_the_cpu_backend(reward):
     w, c = _pair(num_envs=n, reward=reward, action_mode="residual", start="beginning", termination_distance=0.15)
     ow, iw = w.reset(seed=0, options=begin)
     oc, ic = c.reset(seed=0, options=begin)
-    assert np.abs(ow.numpy() - oc).max() < 1e-4
+    assert np.abs(ow.cpu().numpy() - oc).max() < 1e-4
     ended = step_backends_alike(w, c, info_keys=("point_pos", "ref_point_pos", "point_error", "ref_body_pos",
                                                   "reward_pos", "reward_rot"))
     assert ended >= 2  # terminations and the restarts after them were compared too
@@ -341,13 +341,13 @@ def test_warp_backend_matches_the_cpu_backend(reward):
 def test_warp_outputs_are_torch_tensors():
     import torch
 
-    env = _vec(backend="warp", device="cpu", action_mode="residual", render_mode="rgb_array", render_size=(64, 48))
+    env = _vec(backend="warp", device=WARP_DEVICE, action_mode="residual", render_mode="rgb_array", render_size=(64, 48))
     obs, info = env.reset(seed=0)
     assert isinstance(obs, torch.Tensor) and obs.dtype == torch.float32 and obs.shape == (2, 430)
     assert all(isinstance(v, torch.Tensor) for v in info.values())
     u = env.unwrapped
     ref = u.reference_action()
-    assert isinstance(ref, torch.Tensor) and torch.equal(ref, torch.zeros(2, 69))
+    assert isinstance(ref, torch.Tensor) and torch.equal(ref, torch.zeros(2, 69, device=ref.device))
     obs, reward, terminated, truncated, info = env.step(ref)
     assert reward.dtype == torch.float32 and reward.shape == (2,)
     assert terminated.dtype == torch.bool and truncated.dtype == torch.bool
@@ -379,10 +379,10 @@ def test_warp_backend_drives_streams(walk_stream, tmp_path):
     ow, iw = w.reset(seed=0, options=begin)
     oc, ic = c.reset(seed=0, options=begin)
     assert isinstance(ow, torch.Tensor) and "ref_body_pos" not in iw
-    assert np.abs(ow.numpy() - oc).max() < 1e-4
-    assert np.abs(w.sim.qpos.numpy() - np.stack([d.qpos for d in c.unwrapped.sim.datas])).max() < 1e-5
+    assert np.abs(ow.cpu().numpy() - oc).max() < 1e-4
+    assert np.abs(w.sim.qpos.cpu().numpy() - np.stack([d.qpos for d in c.unwrapped.sim.datas])).max() < 1e-5
     for key in ("point_pos", "ref_point_pos", "point_error", "motion_time"):
-        assert np.abs(iw[key].numpy() - ic[key]).max() < 1e-5, key
+        assert np.abs(iw[key].cpu().numpy() - ic[key]).max() < 1e-5, key
 
     # Hold the start pose: the run stream's hand is beyond 0.25 m once the grace period is over.
     hold = u._start_pose[7:] / u.action_scale
@@ -390,11 +390,11 @@ def test_warp_backend_drives_streams(walk_stream, tmp_path):
     alike = np.ones(2, bool)  # worlds not restarted yet (a restart draws its stream on each backend's generator)
     for k in range(3):
         ow, rw, tw, uw, iw = w.step(hold.repeat(2, 1))
-        oc, rc, tc, uc, ic = c.step(np.tile(hold.numpy(), (2, 1)))
+        oc, rc, tc, uc, ic = c.step(np.tile(hold.cpu().numpy(), (2, 1)))
         assert tw.tolist() == tc.tolist() and tc[0] == (k == 1), k
-        assert np.abs(rw.numpy() - rc)[alike].max(initial=0) < 1e-3, k
+        assert np.abs(rw.cpu().numpy() - rc)[alike].max(initial=0) < 1e-3, k
         alike &= ~tc
-        assert np.abs(ow.numpy() - oc)[alike].max(initial=0) < 1e-3, k
+        assert np.abs(ow.cpu().numpy() - oc)[alike].max(initial=0) < 1e-3, k
         ended = tw.nonzero().reshape(-1)
         if len(ended):
             # Restarted within the step (SameStep): from the first frame of a stream, standing
@@ -410,8 +410,8 @@ def test_warp_backend_drives_streams(walk_stream, tmp_path):
     frames, ids = u.ref.frame, u.ref.motion_id
     starts, lengths = u.stream_frames.starts[ids], u.stream_frames.lengths[ids]
     assert ((frames >= starts) & (frames < starts + lengths - 1)).all()
-    host = u.streams.pos[frames.numpy()]
-    assert np.allclose(info["ref_point_pos"].numpy(), host, atol=1e-6)
+    host = u.streams.pos[frames.cpu().numpy()]
+    assert np.allclose(info["ref_point_pos"].cpu().numpy(), host, atol=1e-6)
     assert torch.allclose(info["point_pos"][:, 0, :2], info["ref_point_pos"][:, 0, :2], atol=1e-5)
     head_yaw = yaw_of(u.sim.bodies.rot[:, HEAD])
     assert torch.allclose(head_yaw, yaw_of(u.stream_frames.rot[frames, 0]), atol=1e-4)
@@ -429,6 +429,6 @@ def test_warp_evaluation_of_a_stream(tmp_path):
         return np.zeros((len(obs), 69), np.float32)
 
     rows = [smpl_envs.evaluate(zero, ID, motions=path, num_envs=1, progress=False, env_kwargs=kw).rows[0]
-            for kw in ({"backend": "warp", "device": "cpu"}, {})]
+            for kw in ({"backend": "warp", "device": WARP_DEVICE}, {})]
     assert rows[0]["frames"] == rows[1]["frames"] and rows[0]["fail_frame"] == rows[1]["fail_frame"]
     assert rows[0]["mpjpe_g"] == pytest.approx(rows[1]["mpjpe_g"], rel=0.05)

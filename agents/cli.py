@@ -32,7 +32,7 @@ import json
 import sys
 from pathlib import Path
 
-from smpl_envs.backend import MissingExtraError
+from smpl_envs.backend import BACKENDS, MissingExtraError
 
 from . import distributed, run
 from .checkpoint import NO_SPACE
@@ -92,6 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start the policy from this checkpoint's weights and normalisers (a shipped name, a .pt "
                         "file or a run directory; fresh optimiser and step count): sets agent.init")
     p.add_argument("--device", help="torch device (auto, cpu, cuda ...); overrides train.device")
+    p.add_argument("--backend", choices=BACKENDS,
+                   help="where the physics runs: warp puts the env on MuJoCo Warp, on --device when one is "
+                        "given, else on CUDA where there is one (sets env.kwargs.backend and .device)")
     p.add_argument("--quiet", action="store_true", help="no per-iteration log table on stdout")
     p.add_argument("--update-threads", type=int, default=None, metavar="M",
                    help="torch CPU threads during the network update, when the simulation is idle "
@@ -203,6 +206,10 @@ def cmd_train(args) -> int:
                               f"(WORLD_SIZE={os.environ.get('WORLD_SIZE')}); leave --nproc out")
         command = distributed.torchrun_command(args.nproc, without_nproc(args.argv))
         os.execv(command[0], command)  # torchrun replaces this process: signals reach it directly
+    if args.backend is not None:
+        device = None if args.backend == "cpu" or args.device in (None, "auto") else args.device
+        args.overrides = [*args.overrides, f"env.kwargs.backend={args.backend}",
+                          f"env.kwargs.device={json.dumps(device)}"]
     if args.init is not None:
         if args.resume is not None:
             raise RecipeError("--init starts a new run from a checkpoint's weights; a resumed run continues its own")

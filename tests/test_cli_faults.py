@@ -255,12 +255,27 @@ def test_bad_setting_is_one_error_and_overwrite_keeps_the_old_run(setting, run, 
     assert snapshot(run) == before
 
 
-def test_warp_backend_without_the_gpu_extra_is_one_error_naming_the_extra(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("argv, device", [(["--backend", "warp"], None), (["--backend", "warp", "--device", "cuda:1"], "cuda:1"),
+                                          (["--backend", "cpu", "--device", "cuda"], None)])
+def test_backend_flag_sets_where_the_env_runs(monkeypatch, argv, device):
+    seen = {}
+
+    def train(recipe, overrides, **kwargs):
+        seen["recipe"] = load_recipe(recipe, overrides)
+
+    monkeypatch.setattr(run_module, "train", train)
+    main(["train", "demo_walk_ppo", *argv])
+    kwargs = seen["recipe"]["env"]["kwargs"]
+    assert kwargs["backend"] == argv[1] and kwargs["device"] == device
+
+
+@pytest.mark.parametrize("asked", [["--set", "env.kwargs.backend=warp"], ["--backend", "warp"]])
+def test_warp_backend_without_the_gpu_extra_is_one_error_naming_the_extra(tmp_path, monkeypatch, capsys, asked):
     for module in ("warp", "mujoco_warp"):  # as where the extra is not installed, whether or not it is here
         monkeypatch.setitem(sys.modules, module, None)
     run = tmp_path / "run"
     with pytest.raises(SystemExit) as exc:
-        main(["train", "demo_walk_ppo", "--set", "env.kwargs.backend=warp", "--run-dir", str(run), *TINY])
+        main(["train", "demo_walk_ppo", *asked, "--run-dir", str(run), *TINY])
     assert exc.value.code == 2
     err = one_error_line(capsys)
     assert "pip install 'smpl-envs[gpu]'" in err and "backend='warp'" in err

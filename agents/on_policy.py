@@ -518,7 +518,7 @@ class OnPolicyAlgorithm:
             if agent.env_id is None:
                 raise ValueError("the checkpoint records no env id; pass an env")
             env = agent.env_id
-            env_kwargs = {**runnable_here(agent.env_kwargs, f"{path}'s training"), **(env_kwargs or {})}
+            env_kwargs = runnable_here(agent.env_kwargs, env_kwargs, f"{path}'s training")
             n_envs = n_envs or ckpt["env"]["n_envs"] or 1
         if env is not None:
             agent.set_env(env, n_envs=n_envs or 1, env_kwargs=env_kwargs, override_settings=override_settings)

@@ -206,19 +206,21 @@ def warp_device_problem(device) -> str | None:
     return None
 
 
-def runnable_here(env_kwargs: dict, what: str = "the run") -> dict:
-    """A recorded run's env kwargs for this machine. The backend and device say where the
-    physics ran, not how the policy acts, so a run trained on a GPU evaluates and records on a
-    machine without one: there a warp backend whose device is missing becomes the CPU backend,
-    with a warning that says so (float64 physics instead of float32: the same model)."""
-    if env_kwargs.get("backend", "cpu") != "warp":
-        return env_kwargs
-    device = env_kwargs.get("device")  # None: CUDA where there is one, else Warp's CPU device
+def runnable_here(recorded: dict, given: dict | None = None, what: str = "the run") -> dict:
+    """A recorded run's env kwargs for this machine, with the caller's `given` ones over them.
+    The backend and device say where the physics ran, not how the policy acts, so a run trained
+    on a GPU evaluates and records on a machine without one: there a recorded warp backend whose
+    device is missing becomes the CPU backend, with a warning that says so (float64 physics
+    instead of float32: the same model). A backend or device the caller gives is used as given."""
+    given = dict(given or {})
+    if "backend" in given or "device" in given or recorded.get("backend", "cpu") != "warp":
+        return {**recorded, **given}
+    device = recorded.get("device")  # None: CUDA where there is one, else Warp's CPU device
     problem = warp_device_problem("cpu" if device is None else device)
     if problem is None:
-        return env_kwargs
+        return {**recorded, **given}
     import warnings
 
     warnings.warn(f"{what} ran on backend='warp', device={device!r}, which this machine lacks ({problem}); "
                   "running it on the CPU backend", stacklevel=2)
-    return {k: v for k, v in env_kwargs.items() if k not in ("backend", "device")}
+    return {**{k: v for k, v in recorded.items() if k not in ("backend", "device")}, **given}

@@ -117,12 +117,11 @@ class EvalProtocol:
         """Env kwargs of a training run that carry over to its evaluation (reward weights,
         substeps, action mode ...)."""
         drop = set(self.train_only_kwargs) | set(_VEC_ONLY) | set(_MOTION_KWARGS)
-        return runnable_here({k: v for k, v in train_kwargs.items() if k not in drop}, "the policy's training")
+        return {k: v for k, v in train_kwargs.items() if k not in drop}
 
     def record_kwargs(self, train_kwargs: dict) -> dict:
         """Env kwargs for a video of a training run's policy (one world, as in training)."""
-        return runnable_here({k: v for k, v in train_kwargs.items() if k not in set(_VEC_ONLY) | set(_MOTION_KWARGS)},
-                             "the policy's training")
+        return {k: v for k, v in train_kwargs.items() if k not in set(_VEC_ONLY) | set(_MOTION_KWARGS)}
 
     def run(self, policy: Callable, env, options: dict, progress: bool) -> EvalResult:
         raise NotImplementedError
@@ -315,8 +314,8 @@ def evaluate(policy: Callable, env="SMPL/Imitation-v0", *, motions=None, num_env
         if trained is not None:
             trained_id, trained_kwargs = trained
             policy_settings.check_task(trained_id, env)
-            env_kwargs = policy_settings.with_trained_settings(
-                env, trained_kwargs, {**protocol.eval_kwargs(trained_kwargs), **env_kwargs}, override_settings)
+            carried = runnable_here(protocol.eval_kwargs(trained_kwargs), env_kwargs, "the policy's training")
+            env_kwargs = policy_settings.with_trained_settings(env, trained_kwargs, carried, override_settings)
             motions = trained_kwargs.get("motions") if motions is None else motions
         env = protocol.make_env(env, motions, int(num_envs), env_kwargs, progress, options)
     elif motions is not None or env_kwargs is not None:

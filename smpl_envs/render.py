@@ -200,6 +200,7 @@ def _trained_make_kwargs(env_id: str, trained_id: str | None, trained: dict, mak
                          override: Iterable[str]) -> dict:
     """gym.make kwargs for a video of a policy trained on `trained_id` with env kwargs `trained`."""
     from . import policy_settings
+    from .backend import runnable_here
     from .evaluation import protocol_for
 
     policy_settings.check_task(trained_id, env_id)
@@ -208,7 +209,8 @@ def _trained_make_kwargs(env_id: str, trained_id: str | None, trained: dict, mak
         carried = protocol_for(env_id).record_kwargs(trained)
         if trained.get("motions") is not None:
             carried["motions"] = trained["motions"]
-    return policy_settings.with_trained_settings(env_id, trained, {**carried, **make_kwargs}, override)
+    return policy_settings.with_trained_settings(
+        env_id, trained, runnable_here(carried, make_kwargs, "the policy's training"), override)
 
 
 def _resolve_policy(env, policy):

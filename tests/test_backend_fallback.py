@@ -40,6 +40,18 @@ def test_a_gpu_run_reloads_with_its_env_on_the_cpu_backend(gpu_trained):
     agent.close()
 
 
+def test_a_backend_the_caller_gives_is_used_as_given(monkeypatch):
+    import warnings
+
+    monkeypatch.setattr(smpl_envs.backend, "warp_device_problem", lambda device: f"no {device} here")
+    recorded = {"backend": "warp", "device": "cuda", "action_mode": "residual"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert smpl_envs.backend.runnable_here(recorded, {"device": "cuda:1"}) == {**recorded, "device": "cuda:1"}
+    with pytest.warns(UserWarning, match="CPU backend"):
+        assert smpl_envs.backend.runnable_here(recorded, {"action_mode": "absolute"}) == {"action_mode": "absolute"}
+
+
 def test_a_run_on_a_device_this_machine_has_keeps_it(monkeypatch):
     monkeypatch.setattr(smpl_envs.backend, "warp_device_problem", lambda device: None)
     kwargs = {"backend": "warp", "device": "cuda", "action_mode": "residual"}

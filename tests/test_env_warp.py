@@ -251,6 +251,24 @@ def test_the_warp_benchmark_runs(tmp_path):
     assert row["worlds"] == 2 and row["task_steps_per_s"] > 0 and row["ppo_samples_per_s"] > 0
 
 
+def test_the_step_profile_names_the_host_synchronisations(tmp_path):
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "profile_step.py"
+    out = subprocess.run([sys.executable, str(script), "--device", WARP_DEVICE, "--worlds", "2", "--steps", "3",
+                          "--repeats", "1", "--json", str(tmp_path / "p.json")], capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    result = json.loads((tmp_path / "p.json").read_text())
+    assert 0 < result["physics_ms"] < result["step_ms"] and result["op_calls_per_step"] > 0
+    # Every step checks its actions for NaN on the host (envs/base.py): the count finds it.
+    assert any("isfinite(actions" in site for site in result["host_syncs_per_step"])
+    assert "| whole step |" in out.stdout
+
+
 # Every task that opts in to the backend (VideoPose-v0 is CPU only: tests/test_videopose.py checks its refusal).
 WARP_IDS = sorted(i for i in smpl_envs.ENV_IDS if "warp" in smpl_envs.policy_settings.task_class(i).backends)
 

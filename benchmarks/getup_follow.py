@@ -121,14 +121,24 @@ def main(argv=None) -> list[dict]:
     p.add_argument("--checkpoint", help="an imitation policy: a .pt file, a run directory (its best.pt) or a "
                                         "shipped name (tracker); default: the zero residual")
     p.add_argument("--threshold", type=float, default=0.5, help="m of mean body distance that counts as lost")
+    p.add_argument("--tempo-scale", type=float, default=1.0,
+                   help="play every clip this much faster (its tempo times this, up to getup.TEMPO_LIMITS): "
+                        "what a quicker get-up family would ask")
     p.add_argument("--out", help="JSON file for the rows")
     args = p.parse_args(argv)
     spec, seed = C.parse_seed(args.motions)
     if C.parse(spec)[1] != ["getup"]:
         raise SystemExit(f"--motions must name get-up clips only (e.g. corpus:test/getup), got {args.motions!r}")
     raws, records = C.generate(spec, seed, progress=False)
-    lib = MotionLib(raws)
     manifest = {r.name: r.params for r in records}
+    if args.tempo_scale != 1.0:
+        manifest = {name: {**params, "tempo": params["tempo"] * args.tempo_scale} for name, params in manifest.items()}
+        names = ("start", "side", "roll", *gu.RANGES["getup"])
+        try:
+            raws = [gu.getup(**{k: manifest[r.name][k] for k in names}, name=r.name) for r in raws]
+        except ValueError as e:
+            raise SystemExit(f"--tempo-scale {args.tempo_scale}: {e}") from None
+    lib = MotionLib(raws)
     if args.checkpoint:
         import agents
         from agents.recipes import find_checkpoint
@@ -145,6 +155,8 @@ def main(argv=None) -> list[dict]:
         kwargs = {"action_mode": "residual"}
         act = lambda obs: np.zeros((len(obs), 69), np.float32)  # noqa: E731
         title = f"PD on the reference (zero residual) on {args.motions}"
+    if args.tempo_scale != 1.0:
+        title += f", {args.tempo_scale:g} times as fast"
     rows = report(lib, manifest, follow(lib, act, kwargs), args.threshold)
     print(table(rows, title + f" (lost: mean body distance > {args.threshold} m)"))
     print()

@@ -109,3 +109,15 @@ def test_the_follow_benchmark_names_the_phase_a_clip_is_lost_in():
     assert row["followed"] == row["frames"] and row["lost_in"] == "-"
     with pytest.raises(SystemExit, match="get-up clips only"):
         bench.main(["--motions", "corpus:test/walk"])
+    with pytest.raises(SystemExit, match="tempo-scale 9.*tempo"):  # beyond getup.TEMPO_LIMITS
+        bench.main(["--tempo-scale", "9"])
+
+
+def test_getup_makes_faster_tempos_than_the_corpus_draws():
+    from smpl_envs.motion.getup import RANGES, TEMPO_LIMITS
+
+    assert TEMPO_LIMITS[1] > RANGES["getup"]["tempo"][1]
+    slow, fast = phases("front", tempo=1.0), phases("front", tempo=2.0)
+    # the moving phases take half as long; lying and kneeling are held for their own seconds
+    assert fast["crouch"][1] - fast["crouch"][0] == pytest.approx((slow["crouch"][1] - slow["crouch"][0]) / 2)
+    assert fast["lie"] == slow["lie"]

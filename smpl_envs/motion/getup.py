@@ -66,6 +66,9 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     },
 }
 STARTS = ("front", "back")
+# The tempos getup() makes; the corpus draws from RANGES' narrower band. Faster get-ups are for
+# measuring what a quicker family would ask of a body (benchmarks/getup_follow.py --tempo-scale).
+TEMPO_LIMITS = (0.5, 2.5)
 
 _FLOOR_BODIES = np.array([i for i in range(24) if i not in {B[f"{s}_{p}"] for s in SIDES
                                                             for p in ("Shoulder", "Elbow", "Wrist", "Hand")}])
@@ -134,7 +137,7 @@ def _made(start, side, roll, tempo, hand_width, hand_ahead, lie, kneel) -> "_Get
     for key, value in (("side", side), ("roll", roll)):
         if value not in SIDES:
             raise ValueError(f"getup: {key} = {value!r} must be 'L' or 'R'")
-    tempo = _check("tempo", tempo)
+    tempo = check_number("getup", "tempo", tempo, TEMPO_LIMITS)
     p = {k: _check(k, v) for k, v in (("hand_width", hand_width), ("hand_ahead", hand_ahead),
                                        ("lie", lie), ("kneel", kneel))}
     return _Getup(start, side, roll, tempo, **p)

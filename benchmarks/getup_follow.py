@@ -127,7 +127,7 @@ def main(argv=None) -> list[dict]:
     p.add_argument("--out", help="JSON file for the rows")
     args = p.parse_args(argv)
     spec, seed = C.parse_seed(args.motions)
-    if C.parse(spec)[1] != ["getup"]:
+    if not set(C.parse(spec)[1]) <= {"getup", "getup_quick"}:
         raise SystemExit(f"--motions must name get-up clips only (e.g. corpus:test/getup), got {args.motions!r}")
     raws, records = C.generate(spec, seed, progress=False)
     manifest = {r.name: r.params for r in records}

@@ -122,22 +122,25 @@ def main(argv=None) -> list[dict]:
                                         "shipped name (tracker); default: the zero residual")
     p.add_argument("--threshold", type=float, default=0.5, help="m of mean body distance that counts as lost")
     p.add_argument("--tempo-scale", type=float, default=1.0,
-                   help="play every clip this much faster (its tempo times this, up to getup.TEMPO_LIMITS): "
+                   help="play every clip this much faster (its tempo times this, within getup.TEMPO_LIMITS): "
                         "what a quicker get-up family would ask")
     p.add_argument("--out", help="JSON file for the rows")
     args = p.parse_args(argv)
     spec, seed = C.parse_seed(args.motions)
     if not set(C.parse(spec)[1]) <= {"getup", "getup_quick"}:
         raise SystemExit(f"--motions must name get-up clips only (e.g. corpus:test/getup), got {args.motions!r}")
+    drawn = {"getup": gu.RANGES["getup"]["tempo"], "getup_quick": C.GETUP_QUICK_TEMPO}  # the families' tempos
+    lo = min(drawn[f][0] for f in C.parse(spec)[1]) * args.tempo_scale
+    hi = max(drawn[f][1] for f in C.parse(spec)[1]) * args.tempo_scale
+    if not gu.TEMPO_LIMITS[0] <= lo <= hi <= gu.TEMPO_LIMITS[1]:  # refused before the clips are made
+        raise SystemExit(f"--tempo-scale {args.tempo_scale}: the clips' tempos would be {lo:.2f}-{hi:.2f}, outside "
+                         f"the {gu.TEMPO_LIMITS} getup() makes")
     raws, records = C.generate(spec, seed, progress=False)
     manifest = {r.name: r.params for r in records}
     if args.tempo_scale != 1.0:
         manifest = {name: {**params, "tempo": params["tempo"] * args.tempo_scale} for name, params in manifest.items()}
         names = ("start", "side", "roll", *gu.RANGES["getup"])
-        try:
-            raws = [gu.getup(**{k: manifest[r.name][k] for k in names}, name=r.name) for r in raws]
-        except ValueError as e:
-            raise SystemExit(f"--tempo-scale {args.tempo_scale}: {e}") from None
+        raws = [gu.getup(**{k: manifest[r.name][k] for k in names}, name=r.name) for r in raws]
     lib = MotionLib(raws)
     if args.checkpoint:
         import agents

@@ -68,7 +68,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
 STARTS = ("front", "back")
 # The tempos getup() makes; the corpus draws from RANGES' narrower band. Faster get-ups are for
 # measuring what a quicker family would ask of a body (benchmarks/getup_follow.py --tempo-scale).
-TEMPO_LIMITS = (0.5, 2.5)
+TEMPO_LIMITS = (0.5, 3.0)
 
 _FLOOR_BODIES = np.array([i for i in range(24) if i not in {B[f"{s}_{p}"] for s in SIDES
                                                             for p in ("Shoulder", "Elbow", "Wrist", "Hand")}])

@@ -45,11 +45,13 @@ from smpl_envs.motion.plausibility import zmp_margin
 ENV_ID = "SMPL/Imitation-v0"
 
 
+GETUP_ARGS = ("start", "side", "roll", *gu.RANGES["getup"])  # what a manifest record gives getup()
+
+
 def phase_frames(params: dict) -> dict[str, tuple[int, int]]:
     """{phase: (first frame, end frame)} of the get-up drawn with `params` (its manifest record)."""
-    names = ("start", "side", "roll", *gu.RANGES["getup"])
     return {p: (int(round(a * FPS)), int(round(b * FPS)))
-            for p, (a, b) in gu.phases(**{k: params[k] for k in names}).items()}
+            for p, (a, b) in gu.phases(**{k: params[k] for k in GETUP_ARGS}).items()}
 
 
 def follow(lib: MotionLib, act, env_kwargs: dict) -> np.ndarray:
@@ -127,11 +129,12 @@ def main(argv=None) -> list[dict]:
     p.add_argument("--out", help="JSON file for the rows")
     args = p.parse_args(argv)
     spec, seed = C.parse_seed(args.motions)
-    if not set(C.parse(spec)[1]) <= {"getup", "getup_quick"}:
-        raise SystemExit(f"--motions must name get-up clips only (e.g. corpus:test/getup), got {args.motions!r}")
     drawn = {"getup": gu.RANGES["getup"]["tempo"], "getup_quick": C.GETUP_QUICK_TEMPO}  # the families' tempos
-    lo = min(drawn[f][0] for f in C.parse(spec)[1]) * args.tempo_scale
-    hi = max(drawn[f][1] for f in C.parse(spec)[1]) * args.tempo_scale
+    families = C.parse(spec)[1]
+    if not set(families) <= set(drawn):
+        raise SystemExit(f"--motions must name get-up clips only (e.g. corpus:test/getup), got {args.motions!r}")
+    lo = min(drawn[f][0] for f in families) * args.tempo_scale
+    hi = max(drawn[f][1] for f in families) * args.tempo_scale
     if not gu.TEMPO_LIMITS[0] <= lo <= hi <= gu.TEMPO_LIMITS[1]:  # refused before the clips are made
         raise SystemExit(f"--tempo-scale {args.tempo_scale}: the clips' tempos would be {lo:.2f}-{hi:.2f}, outside "
                          f"the {gu.TEMPO_LIMITS} getup() makes")
@@ -139,8 +142,7 @@ def main(argv=None) -> list[dict]:
     manifest = {r.name: r.params for r in records}
     if args.tempo_scale != 1.0:
         manifest = {name: {**params, "tempo": params["tempo"] * args.tempo_scale} for name, params in manifest.items()}
-        names = ("start", "side", "roll", *gu.RANGES["getup"])
-        raws = [gu.getup(**{k: manifest[r.name][k] for k in names}, name=r.name) for r in raws]
+        raws = [gu.getup(**{k: manifest[r.name][k] for k in GETUP_ARGS}, name=r.name) for r in raws]
     lib = MotionLib(raws)
     if args.checkpoint:
         import agents

@@ -212,15 +212,13 @@ def runnable_here(recorded: dict, given: dict | None = None, what: str = "the ru
     on a GPU evaluates and records on a machine without one: there a recorded warp backend whose
     device is missing becomes the CPU backend, with a warning that says so (float64 physics
     instead of float32: the same model). A backend or device the caller gives is used as given."""
-    given = dict(given or {})
-    if "backend" in given or "device" in given or recorded.get("backend", "cpu") != "warp":
-        return {**recorded, **given}
-    device = recorded.get("device")  # None: CUDA where there is one, else Warp's CPU device
-    problem = warp_device_problem("cpu" if device is None else device)
-    if problem is None:
-        return {**recorded, **given}
-    import warnings
+    if recorded.get("backend", "cpu") == "warp" and not {"backend", "device"} & set(given or {}):
+        device = recorded.get("device")  # None: CUDA where there is one, else Warp's CPU device
+        problem = warp_device_problem("cpu" if device is None else device)
+        if problem is not None:
+            import warnings
 
-    warnings.warn(f"{what} ran on backend='warp', device={device!r}, which this machine lacks ({problem}); "
-                  "running it on the CPU backend", stacklevel=2)
-    return {**{k: v for k, v in recorded.items() if k not in ("backend", "device")}, **given}
+            warnings.warn(f"{what} ran on backend='warp', device={device!r}, which this machine lacks ({problem}); "
+                          "running it on the CPU backend", stacklevel=2)
+            recorded = {k: v for k, v in recorded.items() if k not in ("backend", "device")}
+    return {**recorded, **(given or {})}

@@ -570,7 +570,7 @@ class SingleEnv(gym.Env):
             if bad in kwargs:
                 raise TypeError(f"{bad!r} is for gym.make_vec, not gym.make")
         self.vec = vec_class(1, autoreset_mode=AutoresetMode.DISABLED, render_mode=render_mode, **kwargs)
-        self.metadata = {**self.metadata, "backend": self.vec.metadata["backend"], "device": self.vec.metadata["device"]}
+        self.metadata = {**self.metadata, **{k: self.vec.metadata[k] for k in ("backend", "device")}}
         self.render_mode = render_mode
         self.action_space = self.vec.single_action_space
         self.observation_space = self.vec.single_observation_space

@@ -50,7 +50,9 @@ def foot_points(body_pos, body_rot):
     """(N, 32, 3) world positions of the foot box corners of bodies (N, 24, 3) with rotation
     matrices (N, 24, 3, 3)."""
     rot = body_rot[:, FOOT_BODIES]  # (N, 4, 3, 3)
-    pts = FOOT_CORNERS @ rot.swapaxes(-1, -2) + body_pos[:, FOOT_BODIES, None]
+    corners = FOOT_CORNERS if xp(body_pos) is np else xp(body_pos).as_tensor(FOOT_CORNERS, dtype=body_pos.dtype,
+                                                                             device=body_pos.device)
+    pts = corners @ rot.swapaxes(-1, -2) + body_pos[:, FOOT_BODIES, None]
     return pts.reshape(len(body_pos), -1, 3)
 
 

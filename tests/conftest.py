@@ -153,8 +153,9 @@ def step_backends_alike(warp_env, cpu_env, steps: int = 10, scale: float = 0.3, 
     import torch
 
     rng, n, ended = np.random.default_rng(seed), cpu_env.num_envs, 0
+    width = cpu_env.single_action_space.shape[0]  # 69 PD targets, or more (SimPoE's meta-PD and root wrench)
     for k in range(steps):
-        a = rng.uniform(-scale, scale, (n, 69)).astype(np.float32)
+        a = rng.uniform(-scale, scale, (n, width)).astype(np.float32)
         ow, rw, tw, uw, iw = warp_env.step(torch.as_tensor(a))
         oc, rc, tc, uc, ic = cpu_env.step(a)
         assert isinstance(ow, torch.Tensor) and ow.shape == oc.shape

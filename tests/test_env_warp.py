@@ -269,7 +269,7 @@ def test_the_step_profile_names_the_host_synchronisations(tmp_path):
     assert "| whole step |" in out.stdout
 
 
-# Every task that opts in to the backend (VideoPose-v0 is CPU only: tests/test_videopose.py checks its refusal).
+# Every task that opts in to the backend (all of the suite's; VideoPose-v0's parity is in tests/test_videopose.py).
 WARP_IDS = sorted(i for i in smpl_envs.ENV_IDS if "warp" in smpl_envs.policy_settings.task_class(i).backends)
 
 

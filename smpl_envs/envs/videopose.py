@@ -58,8 +58,8 @@ of the current frame, `next_est_dof_pos` and `next_truth_dof_pos` (N, 69), `foot
 Evaluation: `smpl_envs.video_eval.VideoProtocol` (every sequence once; MPJPE, PA-MPJPE, Accel,
 foot sliding, ground penetration, reprojection error, no-fall share).
 
-Backends: "cpu" only (the sim's meta-PD and root wrench are CPU MuJoCo inputs); backend="warp"
-is refused with a clear error.
+Backends: "cpu" and "warp" (both simulators take meta-PD's per-substep gain scales and the root
+wrench; on MuJoCo Warp the video arrays the task reads every step live on the device).
 """
 
 from __future__ import annotations
@@ -75,6 +75,7 @@ from ..sim.cpu import DAMPING_SUFFIX
 from ..video_eval import VideoProtocol
 from ..video_features import (VIDEO_TASK_LAYOUT, camera_in_heading, foot_points, reprojection_residual, video_obs,
                               weighted_mean)
+from ..motion.library import DeviceFrames
 from ..motion.video_input import VideoLib
 from ..video_sources import video_library
 from .base import HumanoidVecEnv, check_number, fallen
@@ -126,7 +127,7 @@ class VideoPoseVecEnv(HumanoidVecEnv):
     # What an action and an observation mean: a policy runs only with the values it trained with.
     policy_kwargs = (*HumanoidVecEnv.policy_kwargs, "residual_scale", "meta_pd", "meta_pd_range", "residual_force",
                      "residual_force_scale", "residual_torque_scale")
-    backends = ("cpu",)
+    backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, motions=None, video=None, noise: dict | None = None,
                  noise_scale: float = 1.0, noise_seed: int = 0, reward_scales: dict | None = None,
@@ -134,9 +135,6 @@ class VideoPoseVecEnv(HumanoidVecEnv):
                  meta_pd: bool = False, meta_pd_range: float = META_PD_RANGE, residual_force: bool = False,
                  residual_force_scale: float = RESIDUAL_FORCE_SCALE,
                  residual_torque_scale: float = RESIDUAL_TORQUE_SCALE, ghost_offset=(0.0, 0.0, 0.0), **kwargs):
-        if kwargs.get("backend", "cpu") != "cpu":
-            raise ValueError(f"SMPL/VideoPose-v0 runs on backend 'cpu' only (its meta-PD and residual root force "
-                             f"are CPU MuJoCo inputs), got backend={kwargs['backend']!r}")
         self.reward_scales = _merge("reward_scales", REWARD_SCALES, reward_scales)
         if termination_distance is not None and not float(termination_distance) > 0:
             raise ValueError(f"termination_distance must be a positive distance in metres or None, "
@@ -156,8 +154,16 @@ class VideoPoseVecEnv(HumanoidVecEnv):
         self.video: VideoLib = video_library(motions, video, noise=noise, noise_scale=noise_scale,
                                              noise_seed=noise_seed, cache=kwargs.get("cache", True))
         super().__init__(num_envs, motions=self.video.estimate, **kwargs)
+        b = self.backend
         self.truth = self.video.truth
-        self.ref = ReferenceTracker(self.motion_frames, self.num_envs, self.backend)
+        self.ref = ReferenceTracker(self.motion_frames, self.num_envs, b)
+        # What every step reads of the input, where the task's arrays live (the host library's own
+        # arrays on the CPU backend; device copies on MuJoCo Warp).
+        on = (lambda x: x) if b.name == "cpu" else b.asarray
+        v = self.video
+        self._keypoints, self._confidence, self._start_lift = on(v.keypoints), on(v.confidence), on(v.start_lift)
+        self._cam_rotation, self._cam_position, self._focal = on(v.cam_rotation), on(v.cam_position), on(v.focal)
+        self._truth = self.truth if self.truth is None or b.name == "cpu" else DeviceFrames(self.truth, b.device)
 
         # The action: 69 residual targets, then meta-PD's gain scales, then the root wrench.
         sizes = {"residual": NUM_HINGES, "meta_pd": 2 * self.substeps if self.meta_pd else 0,
@@ -169,11 +175,11 @@ class VideoPoseVecEnv(HumanoidVecEnv):
                 start += size
         self.single_action_space = spaces.Box(-1.0, 1.0, (start,), np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._ctrl_buf = np.zeros((self.num_envs, self.model.nu))
+        self._ctrl_buf = b.zeros((self.num_envs, self.model.nu))
         if self.meta_pd:
-            self.sim.pd_scales = np.ones((self.num_envs, self.substeps, 2))
+            self.sim.pd_scales = b.zeros((self.num_envs, self.substeps, 2)) + 1.0
         if self.residual_force:
-            self.sim.root_wrench = np.zeros((self.num_envs, 6))
+            self.sim.root_wrench = b.zeros((self.num_envs, 6))
 
     def _configure(self, spec: mujoco.MjSpec) -> None:
         if not self.meta_pd:
@@ -195,7 +201,7 @@ class VideoPoseVecEnv(HumanoidVecEnv):
     def _reset_task(self, ids, options):
         qpos, qvel = super()._reset_task(ids, options)
         # Out of the floor where the estimate sinks into it: a start inside the ground explodes.
-        qpos[:, self.humanoid.qpos.start + 2] += self.video.start_lift[self.start_frame[ids]]
+        qpos[:, self.humanoid.qpos.start + 2] += self._start_lift[self.start_frame[ids]]
         self.ref.begin(ids, self.start_motion[ids], self.start_frame[ids])
         return qpos, qvel
 
@@ -210,7 +216,8 @@ class VideoPoseVecEnv(HumanoidVecEnv):
         if self.residual_force:
             a = actions[:, lay["root_wrench"]]
             heading = heading_rotation(self.sim.bodies.rot[:, 0])
-            local = np.concatenate([a[:, :3] * self.residual_force_scale, a[:, 3:] * self.residual_torque_scale], -1)
+            local = self.backend.xp.concatenate([a[:, :3] * self.residual_force_scale,
+                                                 a[:, 3:] * self.residual_torque_scale], -1)
             # Heading frame -> world: v_w = H v_h for the force and the torque.
             self.sim.root_wrench[:] = (local.reshape(-1, 2, 3) @ heading.swapaxes(-1, -2)).reshape(-1, 6)
         return ctrl
@@ -220,18 +227,17 @@ class VideoPoseVecEnv(HumanoidVecEnv):
 
     def _target(self) -> BodyState:
         """What the reward and termination measure against: the truth, else the estimate."""
-        return self.ref.current() if self.truth is None else self.truth.body_state(self.ref.frame)
+        return self.ref.current() if self._truth is None else self._truth.body_state(self.ref.frame)
 
     def _keypoint_residual(self, body):
         """(N, 24, 2) reprojection residuals of the simulated bodies at the current frame."""
         f, m = self.ref.frame, self.ref.motion_id
-        return reprojection_residual(body.pos, self.video.keypoints[f], self.video.cam_rotation[m],
-                                     self.video.cam_position[m])
+        return reprojection_residual(body.pos, self._keypoints[f], self._cam_rotation[m], self._cam_position[m])
 
     def _evaluate(self, body, heading):
         target = self._target()
         r = self._keypoint_residual(body)
-        reward, terms = videopose_reward(body, target, (r * r).sum(-1), self.video.confidence[self.ref.frame],
+        reward, terms = videopose_reward(body, target, (r * r).sum(-1), self._confidence[self.ref.frame],
                                          self.reward_scales)
         terminated = fallen(body)
         if self.termination_distance is not None:
@@ -243,24 +249,24 @@ class VideoPoseVecEnv(HumanoidVecEnv):
     def _observe(self, body, heading):
         est = self.ref.next()
         nxt, m = self.ref.next_frame(), self.ref.motion_id
-        cam_rot, cam_pos = camera_in_heading(self.video.cam_rotation[m], self.video.cam_position[m], body.pos[:, 0],
-                                             heading)
-        extra = video_obs(est.dof_pos, self.video.keypoints[nxt], self.video.confidence[nxt], cam_rot, cam_pos)
-        return np.concatenate([tracking_obs(body, est, "rotation", heading), extra], -1)
+        cam_rot, cam_pos = camera_in_heading(self._cam_rotation[m], self._cam_position[m], body.pos[:, 0], heading)
+        extra = video_obs(est.dof_pos, self._keypoints[nxt], self._confidence[nxt], cam_rot, cam_pos)
+        return self.backend.xp.concatenate([tracking_obs(body, est, "rotation", heading), extra], -1)
 
     def _task_info(self, body):
-        f, m = self.ref.frame, self.ref.motion_id
-        conf = self.video.confidence[f].astype(np.float64)
-        px = np.linalg.norm(self._keypoint_residual(body) * self.video.focal[m][:, None], axis=-1)
-        info = {"motion_id": self.ref.motion_id.copy(), "motion_time": self.ref.motion_time(),
-                "est_body_pos": self.ref.current().pos.copy(),
-                "next_est_dof_pos": self.ref.next_dof_pos().astype(np.float32),
-                "foot_points": foot_points(body.pos, body.rot).astype(np.float32),
+        b, f, m = self.backend, self.ref.frame, self.ref.motion_id
+        conf = b.asarray(self._confidence[f])
+        r = self._keypoint_residual(body) * self._focal[m][:, None]
+        px = xp(r).sqrt((r * r).sum(-1))
+        info = {"motion_id": b.copy(self.ref.motion_id), "motion_time": self.ref.motion_time(),
+                "est_body_pos": b.copy(self.ref.current().pos),
+                "next_est_dof_pos": b.float32(self.ref.next_dof_pos()),
+                "foot_points": b.float32(foot_points(body.pos, body.rot)),
                 "reprojection_error": weighted_mean(px, conf), "keypoint_weight": conf.sum(-1),
                 "fallen": fallen(body)}
-        if self.truth is not None:
-            info["truth_body_pos"] = self.truth.body_pos[f]
-            info["next_truth_dof_pos"] = self.truth.dof_pos[self.ref.next_frame()]
+        if self._truth is not None:
+            info["truth_body_pos"] = self._truth.body_pos[f]
+            info["next_truth_dof_pos"] = self._truth.dof_pos[self.ref.next_frame()]
         return info
 
     def _markers(self, world):
@@ -272,4 +278,4 @@ class VideoPoseVecEnv(HumanoidVecEnv):
 
     def reference_action(self) -> np.ndarray:
         """(N, action size) zeros: PD tracking of the estimate with the built gains and no force."""
-        return np.zeros((self.num_envs, self.single_action_space.shape[0]), np.float32)
+        return self.backend.float32(self.backend.zeros((self.num_envs, self.single_action_space.shape[0])))

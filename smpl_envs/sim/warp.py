@@ -48,7 +48,13 @@ steps every world (one launch serves all) and then puts the inactive worlds' sta
 CUDA: the substep loop is captured once in a CUDA graph (`graph=True`, the default) and replayed
 each step; if capture fails the loop runs eagerly. Warp works on its own stream, ordered after
 and before torch's current stream with events, so torch code may read and write the views freely.
-(Written without a GPU at hand: the CUDA path, graph and streams, has not been run yet.)
+
+SimPoE's two inputs (`SMPL/VideoPose-v0` only), as on `CPUSim`: assigning `pd_scales` (N,
+substeps, 2) turns meta-PD on (a small kernel sets each substep's scaled setpoints and damping
+controls, inside the CUDA graph, which is captured again), and assigning `root_wrench` (N, 6)
+turns the pelvis force and torque on (written into `xfrc_applied` before each step). Both are
+then device tensors that the task writes in place, as it writes CPUSim's arrays; None turns them
+off again.
 
 Parity with `CPUSim` (tests/test_sim_warp.py, Warp's CPU device): float32 here, float64 there.
 While both see the same contacts, states agree to ~1e-6 (a standing humanoid: 1e-6 after 30
@@ -71,7 +77,7 @@ import mujoco_warp as mjw
 
 from ..features import BodyState
 from ..humanoid.builder import HumanoidAddresses, humanoid_addresses
-from .cpu import MAX_SPEED
+from .cpu import MAX_SPEED, damping_actuators
 
 # Contacts per world and constraint rows (pyramidal friction cone of condim 3: 4 rows a contact).
 # The humanoid touches the floor at 2-8 points standing or lying, and at 52 (208 rows) with every
@@ -103,6 +109,17 @@ def _park_diverged(qpos0: wp.array(dtype=float), max_speed: float, qpos: wp.arra
         for i in range(qvel.shape[1]):
             qvel[w, i] = 0.0
             warmstart[w, i] = 0.0
+
+
+@wp.kernel(enable_backward=False)
+def _meta_pd_ctrl(k: int, q0: int, pd0: int, damp0: int, target: wp.array2d(dtype=float),
+                  scales: wp.array3d(dtype=float), qpos: wp.array2d(dtype=float), ctrl: wp.array2d(dtype=float)):
+    # Substep k's controls of CPUSim._step_slice_meta_pd: a setpoint of q + s_kp (target - q)
+    # pulls with s_kp times the gain, and the damping actuator adds (s_kd - 1) times the damping.
+    w, j = wp.tid()
+    q = qpos[w, q0 + j]
+    ctrl[w, pd0 + j] = q + scales[w, k, 0] * (target[w, j] - q)
+    ctrl[w, damp0 + j] = scales[w, k, 1] - 1.0
 
 
 def to_numpy(x):
@@ -180,19 +197,78 @@ class WarpSim:
         self._parked_t = wp.to_torch(self._parked)
         self._qpos0 = wp.array(model.qpos0.astype(np.float32), device=self._wp_device)
 
+        self._xfrc = view(d.xfrc_applied)
+        # SimPoE's inputs, off: torch views of Warp arrays the meta-PD kernel reads, and the wrench.
+        self._pd_scales = self._pd_scales_wp = self._pd_target = self._pd_target_wp = self._damping = None
+        self._root_wrench = None
+
         # Load every kernel (a graph cannot compile), then start all worlds at the model's rest.
         self._graph = None
+        self._use_graph = bool(graph) and self._cuda
         self._run(self._substeps_eager)
         self._run(self._reset_mask, torch.ones(self.num_worlds, dtype=torch.bool, device=self.device))
-        if graph and self._cuda:
-            try:
-                self._run(self._capture)
-            except Exception as e:  # a driver without conditional graph nodes, say: run eagerly
-                import warnings
-
-                warnings.warn(f"CUDA graph capture failed, stepping without a graph: {e}")
-                self._graph = None
+        if self._use_graph:
+            self._recapture()
             self._run(self._reset_mask, torch.ones(self.num_worlds, dtype=torch.bool, device=self.device))
+
+    def _recapture(self) -> None:
+        """(Re)capture the substep loop in a CUDA graph; the loop's launches changed (or first)."""
+        if not self._use_graph:
+            return
+        self._graph = None
+        try:
+            self._run(self._capture)
+        except Exception as e:  # a driver without conditional graph nodes, say: run eagerly
+            import warnings
+
+            warnings.warn(f"CUDA graph capture failed, stepping without a graph: {e}")
+            self._graph = None
+            self._use_graph = False
+
+    # ------------------------------------------------------------------ SimPoE's inputs
+    @property
+    def pd_scales(self) -> torch.Tensor | None:
+        """(N, substeps, 2) per-substep scales of the PD gains (kp, kd), or None (meta-PD off)."""
+        return self._pd_scales
+
+    @pd_scales.setter
+    def pd_scales(self, value) -> None:
+        if value is None:
+            if self._pd_scales is not None:
+                self._pd_scales = self._pd_scales_wp = self._pd_target = self._pd_target_wp = None
+                self._recapture()
+            return
+        shape = (self.num_worlds, self.substeps, 2)
+        value = torch.as_tensor(value, dtype=self.qpos.dtype, device=self.device)
+        if tuple(value.shape) != shape:
+            raise ValueError(f"pd_scales must have shape {shape} (worlds, substeps, kp and kd), got {tuple(value.shape)}")
+        if self._pd_scales is None:
+            self._damping = damping_actuators(self.model, self.humanoid)
+            nh = self.humanoid.actuators.stop - self.humanoid.actuators.start
+            self._pd_scales_wp = wp.zeros(shape, dtype=float, device=self._wp_device)
+            self._pd_target_wp = wp.zeros((self.num_worlds, nh), dtype=float, device=self._wp_device)
+            self._pd_scales, self._pd_target = wp.to_torch(self._pd_scales_wp), wp.to_torch(self._pd_target_wp)
+            self._pd_scales.copy_(value)
+            self._recapture()
+        else:
+            self._pd_scales.copy_(value)
+
+    @property
+    def root_wrench(self) -> torch.Tensor | None:
+        """(N, 6) world force (N) and torque (N m) on the pelvis, or None (off)."""
+        return self._root_wrench
+
+    @root_wrench.setter
+    def root_wrench(self, value) -> None:
+        if value is None:
+            if self._root_wrench is not None:
+                self._xfrc[:, self._root] = 0.0
+            self._root_wrench = None
+            return
+        value = torch.as_tensor(value, dtype=self.qpos.dtype, device=self.device)
+        if tuple(value.shape) != (self.num_worlds, 6):
+            raise ValueError(f"root_wrench must have shape {(self.num_worlds, 6)}, got {tuple(value.shape)}")
+        self._root_wrench = value.clone()
 
     # ------------------------------------------------------------------ state in and out
     def set_state(self, ids, qpos, qvel) -> None:
@@ -241,10 +317,16 @@ class WarpSim:
     def _step(self, ctrl, active) -> None:
         saved = None if active is None else [a.clone() for a in self._carried]
         self.ctrl.copy_(ctrl)
+        if self._root_wrench is not None:
+            self._xfrc[:, self._root] = self._root_wrench
+        if self._pd_scales is not None:
+            self._pd_target.copy_(ctrl[:, self.humanoid.actuators])
         if self._graph is not None:
             wp.capture_launch(self._graph, stream=self._stream)
         else:
             self._substeps_eager()
+        if self._pd_scales is not None:
+            self.ctrl.copy_(ctrl)  # the PD targets given, as CPUSim keeps them (the kernel rewrote them)
         torch.ne(self._parked_t, 0, out=self._bad)
         self._parked_t.zero_()
         if active is not None:
@@ -258,6 +340,8 @@ class WarpSim:
 
     def _substeps_eager(self) -> None:
         for k in range(self.substeps):
+            if self._pd_scales is not None:
+                self._launch_meta_pd(k)
             mjw.step2(self.wp_model, self.wp_data)
             self._park()
             if k == self.substeps - 1 and self._acc_sensors is not None:
@@ -265,6 +349,12 @@ class WarpSim:
                 # CPU MuJoCo keeps the acceleration-stage ones of the last step2: keep a copy.
                 self._sensor_acc.copy_(self._sensordata)
             self._step1()
+
+    def _launch_meta_pd(self, k: int) -> None:
+        pd, d = self.humanoid.actuators, self.wp_data
+        wp.launch(_meta_pd_ctrl, dim=(self.num_worlds, pd.stop - pd.start),
+                  inputs=[k, self.humanoid.dof_qpos.start, pd.start, self._damping.start, self._pd_target_wp,
+                          self._pd_scales_wp, d.qpos, d.ctrl])
 
     def _park(self) -> None:
         d = self.wp_data

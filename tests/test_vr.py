@@ -87,10 +87,10 @@ def test_observation_reads_only_the_three_references():
     lib = u.motion_lib
     lib.body_pos = lib.body_pos.copy()
     lib.body_pos[:, KNEE] += 0.3  # another body's reference moves: nothing changes
-    u.ref._cache = []
+    u.ref._cache = {}
     assert np.array_equal(u._observe(body, heading), before)
     lib.body_pos[:, HEAD] += 0.1  # the head's moves: the goal changes, the self part does not
-    u.ref._cache = []
+    u.ref._cache = {}
     after = u._observe(body, heading)
     assert np.array_equal(after[:, :358], before[:, :358])
     assert np.abs(after[:, GOAL] - before[:, GOAL]).max() > 0.05
@@ -141,7 +141,7 @@ def test_termination_at_a_quarter_metre_of_one_point():
         u = env.unwrapped
         u.motion_lib.body_pos = u.motion_lib.body_pos.copy()
         u.motion_lib.body_pos[:, BODY_NAMES.index("R_Hand"), 1] += shift  # one point's reference
-        u.ref._cache = []
+        u.ref._cache = {}
         _, _, terminated, _, info = env.step(u.reference_action())
         assert terminated.tolist() == [ends, ends], (shift, info["point_error"])
         env.close()

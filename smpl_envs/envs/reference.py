@@ -57,19 +57,27 @@ class ReferenceTracker:
         self.motion_id = b.zeros(num_worlds, "int")
         self.frame = b.zeros(num_worlds, "int")      # global frame the simulated state should match
         self.end_frame = b.zeros(num_worlds, "int")  # last frame of each world's clip
-        self._cache: list = []
+        # The current and next reference bodies of the frames as they stand now. The frames
+        # change only in `begin` and `advance`, which clear it, so a lookup is reused without
+        # comparing frame arrays (on a GPU each comparison would wait for the device).
+        self._cache: dict[str, BodyState] = {}
 
     def begin(self, ids: np.ndarray, motion_ids: np.ndarray, frames: np.ndarray) -> None:
         """Worlds `ids` start following clips `motion_ids` at global frames `frames`."""
         self.motion_id[ids] = motion_ids
         self.frame[ids] = frames
         self.end_frame[ids] = self.lib.starts[motion_ids] + self.lib.lengths[motion_ids] - 1
+        self._cache = {}
 
     def advance(self, active: np.ndarray | None = None) -> None:
         """One frame on, for every world or those in the mask `active`; clips hold their last frame."""
         xp = self.backend.xp
+        following = self._cache.get("next")
+        self._cache = {}
         if active is None:
             xp.minimum(self.frame + 1, self.end_frame, out=self.frame)
+            if following is not None:  # every world moved onto exactly its next frame
+                self._cache["current"] = following
         else:
             self.frame[active] = xp.minimum(self.frame[active] + 1, self.end_frame[active])
 
@@ -83,22 +91,22 @@ class ReferenceTracker:
         return (self.frame - self.lib.starts[self.motion_id]) * (1.0 / self.lib.fps)
 
     def bodies(self, frames: np.ndarray) -> BodyState:
-        """Reference bodies at global `frames`. A step looks up the current frames (reward, info)
-        and the next ones (observation), and the next ones become the following step's current
-        ones, so the last two lookups are kept: one new lookup per step."""
-        for cached_frames, ref in self._cache:
-            if bool((cached_frames == frames).all()):
-                return ref
-        ref = self.lib.body_state(frames)
-        entry = (self.backend.copy(frames), ref)
-        self._cache = [self._cache[-1], entry] if self._cache else [entry]
-        return ref
+        """Reference bodies at global `frames` (not cached)."""
+        return self.lib.body_state(frames)
 
     def current(self) -> BodyState:
-        return self.bodies(self.frame)
+        """Reference bodies at the current frames. A step reads them (reward, info) and the next
+        ones (observation), and the next ones become the following step's current ones: one new
+        lookup per step. Callers must not write into the result (it is shared)."""
+        if "current" not in self._cache:
+            self._cache["current"] = self.lib.body_state(self.frame)
+        return self._cache["current"]
 
     def next(self) -> BodyState:
-        return self.bodies(self.next_frame())
+        """Reference bodies at the next frames (shared, as `current`'s)."""
+        if "next" not in self._cache:
+            self._cache["next"] = self.lib.body_state(self.next_frame())
+        return self._cache["next"]
 
     def pd_targets(self, actions: np.ndarray, action_scale: np.ndarray, mode: str, residual_scale: float) -> np.ndarray:
         """(N, 69) PD targets of actions in [-1, 1] under `mode` (module docstring)."""

@@ -86,12 +86,18 @@ class PULSEPolicy(Policy):
     Args (after the spaces): latent_dim (32), encoder_hidden, prior_hidden, decoder_hidden (MLP
     sizes; PULSE's code: [1536, 1024, 512] for both encoder and prior, [3096, 2048, 1024] for
     the decoder), activation (silu), obs_clip (5), residual_encoder (the encoder's mean is an
-    offset from the prior's)."""
+    offset from the prior's), encoder_log_std_init (0: the encoder's log std at the start).
+
+    Why encoder_log_std_init: at 0 the encoder starts with unit noise around offsets near 0, so
+    the first thing the decoder learns is to ignore z and act from s_p alone; the shipped `pulse`
+    (distilled that way) moves its actions by 0.5 % of their range through the whole imitation
+    signal in z (`benchmarks/latent_authority.py`). A small start (e.g. -2.5: std 0.08) gives the
+    decoder a z worth reading from the first update; the KL term then sets the noise."""
 
     def __init__(self, obs_dim: int, action_space: gym.spaces.Box | int, *, latent_dim: int = 32,
                  encoder_hidden: Sequence[int] = (512, 256), prior_hidden: Sequence[int] = (512, 256),
                  decoder_hidden: Sequence[int] = (1024, 512), activation: str = "silu", obs_clip: float = 5.0,
-                 residual_encoder: bool = True):
+                 residual_encoder: bool = True, encoder_log_std_init: float = 0.0):
         super().__init__(obs_dim, action_space, act_dim=latent_dim)
         if not self._unit_box:
             raise ValueError("PULSEPolicy decodes into [-1, 1] actions; the env's action box is "
@@ -105,6 +111,10 @@ class PULSEPolicy(Policy):
                                     prior_hidden=list(prior_hidden), decoder_hidden=list(decoder_hidden),
                                     activation=activation, obs_clip=obs_clip)
         self.encoder = mlp(self.obs_dim, list(encoder_hidden), 2 * latent_dim, activation, out_gain=0.01)
+        if not np.isfinite(encoder_log_std_init):
+            raise ValueError(f"encoder_log_std_init must be a finite number, got {encoder_log_std_init!r}")
+        with torch.no_grad():  # the log-variance half of the output: 2 log std
+            self.encoder[-1].bias[latent_dim:] = 2.0 * float(encoder_log_std_init)
 
     @property
     def latent_decoder(self) -> LatentDecoder:
@@ -334,6 +344,15 @@ class PULSE(OnPolicyAlgorithm):
             if v:
                 self.logger.record(f"train/{k}", float(np.mean(v)))
         self.logger.record("train/kl_weight", beta)
+        if len(index):
+            # How much z steers the decoder: the mean action change from the prior's mean to the
+            # encoder's (what the reference adds through z), on up to one minibatch. Near 0, the
+            # decoder acts from s_p alone and a latent task policy has nothing to steer with.
+            with torch.no_grad():
+                nobs = obs[index[:cfg.batch_size]]
+                mu, _, prior_mu, _ = pol.distributions(nobs)
+                effect = (pol.decode(nobs, mu).clamp(-1, 1) - pol.decode(nobs, prior_mu).clamp(-1, 1)).abs().mean()
+            self.logger.record("train/z_effect", float(effect))
         flush_subnormals_(self.optimizer)
 
     # ------------------------------------------------------------------ the latent space

@@ -189,6 +189,23 @@ def test_distillation_on_a_tiny_budget_lowers_the_action_error_against_the_teach
     assert episodes[1] > 15  # the student tracks for a while (it falls within ~10 steps untrained)
 
 
+def test_the_encoder_s_starting_noise_is_a_setting_recorded_in_the_checkpoint(pulse_path, tmp_path):
+    # Beside it, the distillation logs how much z moves the decoder's actions.
+    assert pulse_path[1].logger.last["train/z_effect"] > 0
+    model = tiny_pulse(policy_kwargs={**TINY_NETS, "encoder_log_std_init": -2.5})
+    obs = speed_obs()[:, :PROPRIO_DIM]
+    obs = np.concatenate([obs, np.zeros((len(obs), 934 - PROPRIO_DIM), np.float32)], -1)
+    with torch.no_grad():
+        _, logvar, _, prior_logvar = model.policy.distributions(model.policy.normalize(torch.as_tensor(obs)))
+    assert torch.allclose(torch.exp(0.5 * logvar), torch.tensor(np.exp(-2.5), dtype=torch.float32), rtol=0.05)
+    assert torch.exp(0.5 * prior_logvar).mean() > 0.9  # the prior starts as it did
+    loaded = agents.load(model.save(tmp_path / "p.pt"), device="cpu")
+    assert loaded.policy.init_kwargs["encoder_log_std_init"] == -2.5
+    model.close()
+    with pytest.raises(ValueError, match="encoder_log_std_init"):
+        agents.PULSEPolicy(934, 69, encoder_log_std_init=float("nan"))
+
+
 def test_a_saved_pulse_reloads_to_identical_actions_and_resumes(pulse_path, tmp_path):
     path, model = pulse_path
     obs = np.load(Path(__file__).parent / "data" / "compat" / "actions_v1.npz")["walk/obs"][:6]

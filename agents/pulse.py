@@ -24,6 +24,8 @@ z = mu_E + sigma_E eps (reparameterised), each term a mean over the minibatch an
 dimensions, the smoothness over consecutive steps of one episode; beta goes linearly from
 kl_weight_start to kl_weight_end between iterations kl_anneal_start and kl_anneal_end (PULSE's
 code: 0.01 to 0.001 between epochs 2500 and 5000); log-variances are clamped to [-5, 2].
+Optionally (`kl_free_nats`) each dimension's KL is free up to a number of nats ("free bits",
+Kingma et al. 2016), a standard guard against a posterior that collapses onto the prior.
 
 The teacher is any imitation checkpoint of the suite (`teacher`: a path or a shipped policy's
 name), acting on the raw observations with its own normaliser. The student's env takes the
@@ -65,6 +67,14 @@ REF_DOF = "next_ref_dof_pos"  # the env's info key, and the buffer's field, of t
 def gaussian_kl(mu_q: torch.Tensor, logvar_q: torch.Tensor, mu_p: torch.Tensor, logvar_p: torch.Tensor) -> torch.Tensor:
     """KL(N(mu_q, exp(logvar_q)) || N(mu_p, exp(logvar_p))) per dimension, for diagonal Gaussians."""
     return 0.5 * (logvar_p - logvar_q + (logvar_q.exp() + (mu_q - mu_p).square()) / logvar_p.exp() - 1.0)
+
+
+def free_bits_kl(mu_q, logvar_q, mu_p, logvar_p, free_nats: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
+    """(the KL, its cost): the KL of (..., d) Gaussians as a mean over the batch and the d
+    dimensions, and the same with each dimension's batch mean raised to at least `free_nats`
+    (then it costs, and pulls, nothing below that; with 0 the cost is the KL)."""
+    dims = gaussian_kl(mu_q, logvar_q, mu_p, logvar_p).reshape(-1, mu_q.shape[-1]).mean(0)
+    return dims.mean(), (dims.clamp(min=free_nats).mean() if free_nats else dims.mean())
 
 
 def kl_weight(iteration: int, start: float, end: float, anneal_start: int, anneal_end: int) -> float:
@@ -168,13 +178,17 @@ class PULSEConfig(OnPolicyConfig):
     """iteration at which beta starts to move (PULSE's code: epoch 2500)"""
     kl_anneal_end: int = 5000
     """iteration at which it arrives (PULSE's code: epoch 5000)"""
+    kl_free_nats: float = 0.0
+    """free bits: each latent dimension's KL (mean over the minibatch) costs nothing up to this
+    many nats (0: PULSE's plain KL). Without it the KL, scaled by Adam to full steps whatever beta
+    is, drives the encoder onto the prior while the decoder does not yet read z (docs/pulse.md)"""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.kl_anneal_end < self.kl_anneal_start:
             raise ValueError(f"kl_anneal_end ({self.kl_anneal_end}) must not come before kl_anneal_start "
                              f"({self.kl_anneal_start})")
-        for name in ("smooth_weight", "kl_weight_start", "kl_weight_end"):
+        for name in ("smooth_weight", "kl_weight_start", "kl_weight_end", "kl_free_nats"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
 
@@ -319,14 +333,14 @@ class PULSE(OnPolicyAlgorithm):
             mu, logvar, prior_mu, prior_logvar = pol.distributions(nobs)
             z = mu + torch.exp(0.5 * logvar) * torch.randn_like(mu)
             action_loss = (pol.decode(nobs, z) - labels[i]).square().mean()
-            kl = gaussian_kl(mu, logvar, prior_mu, prior_logvar).mean()
+            kl, kl_cost = free_bits_kl(mu, logvar, prior_mu, prior_logvar, cfg.kl_free_nats)
             prev = has_prev[i]
             if prev.any():
                 mu_prev = pol.distributions(obs[i[prev] - N])[0]
                 smoothness = (mu[prev] - mu_prev).square().mean()
             else:
                 smoothness = torch.zeros((), device=obs.device)
-            loss = action_loss + cfg.smooth_weight * smoothness + beta * kl
+            loss = action_loss + cfg.smooth_weight * smoothness + beta * kl_cost
             return loss, action_loss, kl, smoothness, logvar, prior_logvar
 
         for _ in range(cfg.n_epochs):

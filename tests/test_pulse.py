@@ -16,7 +16,7 @@ import agents
 import smpl_envs
 from agents import PPO, PULSE, LatentActorCritic, load_policy
 from agents.cli import main
-from agents.pulse import LABELS, gaussian_kl, kl_weight
+from agents.pulse import LABELS, free_bits_kl, gaussian_kl, kl_weight
 from agents.recipes import RecipeError, load_recipe
 from smpl_envs.envs.base import PROPRIO_DIM
 from smpl_envs.envs.reference import residual_to_absolute
@@ -74,6 +74,22 @@ def test_kl_of_two_known_gaussians():
                                                  torch.distributions.Normal(mu_p, (0.5 * lv_p).exp()))
     torch.testing.assert_close(gaussian_kl(mu_q, lv_q, mu_p, lv_p), expected)
     assert gaussian_kl(mu_q, lv_q, mu_q, lv_q).abs().max() < 1e-6
+
+
+def test_free_bits_make_a_dimension_s_kl_free_below_them():
+    # Dimension 0: KL 0.5 ln(1/0.25) + (0.25 + 0) / 2 - 0.5 = 0.318 nats; dimension 1: 2.0 + 0.318.
+    mu_q = torch.tensor([[0.0, 2.0]], requires_grad=True)
+    logvar_q = torch.log(torch.tensor([[0.25, 0.25]])).requires_grad_()
+    zeros = torch.zeros(1, 2)
+    kl, cost = free_bits_kl(mu_q, logvar_q, zeros, zeros, free_nats=1.0)
+    expected = 0.5 * np.log(4.0) + 0.125 - 0.5
+    assert kl.item() == pytest.approx((2 * expected + 2.0) / 2, rel=1e-5)
+    assert cost.item() == pytest.approx((1.0 + expected + 2.0) / 2, rel=1e-5)
+    cost.backward()
+    assert logvar_q.grad[0, 0] == 0 and mu_q.grad[0, 0] == 0  # below the free nats: no pull
+    assert logvar_q.grad[0, 1] != 0 and mu_q.grad[0, 1] > 0  # above: the plain KL's gradient
+    plain = free_bits_kl(mu_q, logvar_q, zeros, zeros)
+    assert plain[0].item() == plain[1].item() == pytest.approx(kl.item())
 
 
 def test_the_kl_weight_anneals_linearly_between_its_iterations():

@@ -462,3 +462,21 @@ def test_pulse_trains_evaluates_and_records_on_the_command_line(tmp_path):
     assert read_checkpoint(run / "checkpoints" / "last.pt")["num_timesteps"] == 96
     with pytest.raises(SystemExit):
         main(["generate", str(agents.recipes.find_checkpoint("walk")), "--seconds", "1", *CLI_QUIET])
+
+
+def test_the_latent_authority_benchmark_measures_a_checkpoint(pulse_path, tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "latent_authority.py"
+    out = subprocess.run([sys.executable, str(script), str(pulse_path[0]), "--motions", "walk", "--worlds", "2",
+                          "--steps", "3", "--eval", "--out", str(tmp_path / "a.json")],
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    result = json.loads((tmp_path / "a.json").read_text())
+    assert result["states"] == 6 and result["signal_effect"] >= 0
+    # Bigger latent actions move the decoder's actions further.
+    assert result["noise_effect_std_2.0"] > result["noise_effect_std_0.1"] > 0
+    assert 0 <= result["imitation_prior_mean"]["success_rate"] <= 1
+    assert "| z from the prior's mean to the encoder's" in out.stdout

@@ -100,7 +100,7 @@ class PULSEPolicy(Policy):
 
     Why encoder_log_std_init: at 0 the encoder starts with unit noise around offsets near 0, so
     the first thing the decoder learns is to ignore z and act from s_p alone; the shipped `pulse`
-    (distilled that way) moves its actions by 0.5 % of their range through the whole imitation
+    (distilled that way) moves its actions by 0.3 % of their range through the whole imitation
     signal in z (`benchmarks/latent_authority.py`). A small start (e.g. -2.5: std 0.08) gives the
     decoder a z worth reading from the first update; the KL term then sets the noise."""
 

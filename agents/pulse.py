@@ -74,7 +74,8 @@ def free_bits_kl(mu_q, logvar_q, mu_p, logvar_p, free_nats: float = 0.0) -> tupl
     dimensions, and the same with each dimension's batch mean raised to at least `free_nats`
     (then it costs, and pulls, nothing below that; with 0 the cost is the KL)."""
     dims = gaussian_kl(mu_q, logvar_q, mu_p, logvar_p).reshape(-1, mu_q.shape[-1]).mean(0)
-    return dims.mean(), (dims.clamp(min=free_nats).mean() if free_nats else dims.mean())
+    kl = dims.mean()
+    return kl, (dims.clamp(min=free_nats).mean() if free_nats else kl)
 
 
 def kl_weight(iteration: int, start: float, end: float, anneal_start: int, anneal_end: int) -> float:

@@ -54,7 +54,7 @@ substeps, 2) turns meta-PD on (a small kernel sets each substep's scaled setpoin
 controls, inside the CUDA graph, which is captured again), and assigning `root_wrench` (N, 6)
 turns the pelvis force and torque on (written into `xfrc_applied` before each step). Both are
 then device tensors that the task writes in place, as it writes CPUSim's arrays; None turns them
-off again.
+off again. (The meta-PD graph's recapture has not yet run on a GPU.)
 
 Parity with `CPUSim` (tests/test_sim_warp.py, Warp's CPU device): float32 here, float64 there.
 While both see the same contacts, states agree to ~1e-6 (a standing humanoid: 1e-6 after 30
@@ -198,9 +198,8 @@ class WarpSim:
         self._qpos0 = wp.array(model.qpos0.astype(np.float32), device=self._wp_device)
 
         self._xfrc = view(d.xfrc_applied)
-        # SimPoE's inputs, off: torch views of Warp arrays the meta-PD kernel reads, and the wrench.
-        self._pd_scales = self._pd_scales_wp = self._pd_target = self._pd_target_wp = self._damping = None
-        self._root_wrench = None
+        # SimPoE's inputs, off (the properties below).
+        self._pd_scales = self._pd_target = self._damping = self._root_wrench = None
 
         # Load every kernel (a graph cannot compile), then start all worlds at the model's rest.
         self._graph = None
@@ -233,25 +232,19 @@ class WarpSim:
 
     @pd_scales.setter
     def pd_scales(self, value) -> None:
+        was_on = self._pd_scales is not None
         if value is None:
-            if self._pd_scales is not None:
-                self._pd_scales = self._pd_scales_wp = self._pd_target = self._pd_target_wp = None
-                self._recapture()
-            return
-        shape = (self.num_worlds, self.substeps, 2)
-        value = torch.as_tensor(value, dtype=self.qpos.dtype, device=self.device)
-        if tuple(value.shape) != shape:
-            raise ValueError(f"pd_scales must have shape {shape} (worlds, substeps, kp and kd), got {tuple(value.shape)}")
-        if self._pd_scales is None:
-            self._damping = damping_actuators(self.model, self.humanoid)
-            nh = self.humanoid.actuators.stop - self.humanoid.actuators.start
-            self._pd_scales_wp = wp.zeros(shape, dtype=float, device=self._wp_device)
-            self._pd_target_wp = wp.zeros((self.num_worlds, nh), dtype=float, device=self._wp_device)
-            self._pd_scales, self._pd_target = wp.to_torch(self._pd_scales_wp), wp.to_torch(self._pd_target_wp)
-            self._pd_scales.copy_(value)
-            self._recapture()
+            self._pd_scales = self._pd_target = None
+        elif was_on:
+            self._pd_scales.copy_(self._input("pd_scales", value, self._pd_scales.shape))  # the graph reads this memory
         else:
-            self._pd_scales.copy_(value)
+            self._damping = damping_actuators(self.model, self.humanoid)
+            pd = self.humanoid.actuators
+            self._pd_scales = self._input("pd_scales", value, (self.num_worlds, self.substeps, 2)).clone()
+            self._pd_target = torch.zeros((self.num_worlds, pd.stop - pd.start), dtype=self.qpos.dtype,
+                                          device=self.device)
+        if was_on != (self._pd_scales is not None):
+            self._recapture()  # the substep loop gains or loses the meta-PD launches
 
     @property
     def root_wrench(self) -> torch.Tensor | None:
@@ -260,15 +253,15 @@ class WarpSim:
 
     @root_wrench.setter
     def root_wrench(self, value) -> None:
-        if value is None:
-            if self._root_wrench is not None:
-                self._xfrc[:, self._root] = 0.0
-            self._root_wrench = None
-            return
+        if value is None and self._root_wrench is not None:
+            self._xfrc[:, self._root] = 0.0
+        self._root_wrench = None if value is None else self._input("root_wrench", value, (self.num_worlds, 6)).clone()
+
+    def _input(self, name: str, value, shape) -> torch.Tensor:
         value = torch.as_tensor(value, dtype=self.qpos.dtype, device=self.device)
-        if tuple(value.shape) != (self.num_worlds, 6):
-            raise ValueError(f"root_wrench must have shape {(self.num_worlds, 6)}, got {tuple(value.shape)}")
-        self._root_wrench = value.clone()
+        if tuple(value.shape) != tuple(shape):
+            raise ValueError(f"{name} must have shape {tuple(shape)}, got {tuple(value.shape)}")
+        return value
 
     # ------------------------------------------------------------------ state in and out
     def set_state(self, ids, qpos, qvel) -> None:
@@ -353,8 +346,8 @@ class WarpSim:
     def _launch_meta_pd(self, k: int) -> None:
         pd, d = self.humanoid.actuators, self.wp_data
         wp.launch(_meta_pd_ctrl, dim=(self.num_worlds, pd.stop - pd.start),
-                  inputs=[k, self.humanoid.dof_qpos.start, pd.start, self._damping.start, self._pd_target_wp,
-                          self._pd_scales_wp, d.qpos, d.ctrl])
+                  inputs=[k, self.humanoid.dof_qpos.start, pd.start, self._damping.start,
+                          wp.from_torch(self._pd_target), wp.from_torch(self._pd_scales), d.qpos, d.ctrl])
 
     def _park(self) -> None:
         d = self.wp_data

@@ -79,6 +79,9 @@ class OnPolicyConfig(AgentConfig):
     """GAE parameter (PHC: 0.95)"""
     max_grad_norm: float = 1.0
     """global gradient-norm clip (PHC: 50)"""
+    exploration_hold: int = 1
+    """steps each world keeps its exploration noise in a rollout (1: fresh every step; the
+    action's mean still follows every observation, and acting and evaluation use no noise)"""
     seed: int | None = None
     """seeds torch (network initialisation, sampling) and the env's first reset"""
 
@@ -86,6 +89,8 @@ class OnPolicyConfig(AgentConfig):
         super().__post_init__()
         if self.lr_schedule not in ("constant", "linear"):
             raise ValueError(f"lr_schedule must be 'constant' or 'linear', got {self.lr_schedule!r}")
+        if self.exploration_hold < 1:
+            raise ValueError(f"exploration_hold must be a whole number of steps >= 1, got {self.exploration_hold!r}")
 
 
 def resolve_device(device: str | torch.device, name: str = "device") -> torch.device:
@@ -347,7 +352,8 @@ class OnPolicyAlgorithm:
         """A collector on the attached env, which it resets (with `seed`, this rank's in a job)."""
         episodes = self._rank_episodes if self.data_parallel.enabled else self.episodes
         self._collector = RolloutCollector(self.env, self.policy, episodes, self._rollout_hooks(), self.device,
-                                           value_threads=self.update_threads)
+                                           value_threads=self.update_threads,
+                                           noise_hold=self.config.exploration_hold)
         self._collector.reset(seed=self.data_parallel.seed(seed, stride=self.env.num_envs))
 
     # ------------------------------------------------------------------ data parallelism

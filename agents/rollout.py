@@ -178,6 +178,14 @@ class RolloutCollector:
     episodes: a deque that receives (return, length) of every episode that ends.
     hooks: a `RolloutHooks`.
     value_threads: torch CPU threads for the value pass after the last step (None: as set).
+    noise_hold: steps each world keeps its exploration noise (1: the distribution's own sample
+        every step). Above 1 the action is mean + std * eps with eps held for that many steps
+        (and redrawn when an episode starts): each action still has the policy's distribution
+        given its observation, which is what the stored log-probabilities score, but successive
+        ones explore in one direction. A body driven through a latent space (PULSE) moves its
+        hand three times as far in a second under held noise as under fresh noise of the same
+        size (benchmarks/latent_steering.py). The update treats steps as independent, as
+        Stable-Baselines3's gSDE does with its `sde_sample_freq`.
 
     Only the actor runs between env steps. The critic does not change during a rollout, so the
     values of all its observations (and of the final observations of time-limited episodes, for
@@ -192,8 +200,11 @@ class RolloutCollector:
     """
 
     def __init__(self, env: VectorEnv, policy: Policy, episodes: deque | None = None, hooks: RolloutHooks | None = None,
-                 device: torch.device | str = "cpu", value_threads: int | None = None):
+                 device: torch.device | str = "cpu", value_threads: int | None = None, noise_hold: int = 1):
+        if isinstance(noise_hold, bool) or not isinstance(noise_hold, int) or noise_hold < 1:
+            raise ValueError(f"noise_hold must be a whole number of steps >= 1, got {noise_hold!r}")
         self.env, self.policy = env, policy
+        self.noise_hold = noise_hold
         self.episodes = episodes if episodes is not None else deque(maxlen=100)
         self.hooks = hooks if hooks is not None else RolloutHooks()
         self.device = torch.device(device)
@@ -217,6 +228,8 @@ class RolloutCollector:
         self.prev_done = torch.zeros(n, dtype=torch.bool, device=self.device)
         self.ep_return = torch.zeros(n, dtype=torch.float64, device=self.device)
         self.ep_length = torch.zeros(n, dtype=torch.int64, device=self.device)
+        self.noise: torch.Tensor | None = None  # the held exploration noise, (N, act_dim)
+        self.noise_age = torch.zeros(n, dtype=torch.int64, device=self.device)
 
     def _tensor(self, x) -> torch.Tensor:
         return torch.as_tensor(x, dtype=torch.float32, device=self.device)
@@ -227,6 +240,16 @@ class RolloutCollector:
     def _env_array(self, x: torch.Tensor):
         """`x` as the env's own kind of array, for the hooks (which read the env's `info`)."""
         return x if self.native else x.cpu().numpy()
+
+    def _held_sample(self, dist: torch.distributions.Distribution) -> torch.Tensor:
+        """mean + std * eps, eps redrawn for the worlds whose hold is over or just began."""
+        if not isinstance(dist, torch.distributions.Normal):
+            raise TypeError(f"noise_hold > 1 needs a Gaussian policy (torch Normal); this one acts with a "
+                            f"{type(dist).__name__}")
+        due = (self.noise_age % self.noise_hold == 0)[:, None]
+        fresh = torch.randn_like(dist.mean)
+        self.noise = fresh if self.noise is None else torch.where(due, fresh, self.noise)
+        return dist.mean + dist.stddev * self.noise
 
     @torch.no_grad()
     def collect(self, buf: RolloutBuffer) -> tuple[torch.Tensor, dict[str, float]]:
@@ -247,7 +270,7 @@ class RolloutCollector:
             valid = ~self.prev_done
             obs = self._tensor(self.last_obs)
             dist = pol.action_distribution(pol.normalize(obs))
-            action = dist.sample()
+            action = dist.sample() if self.noise_hold == 1 else self._held_sample(dist)
             buf.obs[t], buf.actions[t] = obs, action  # raw until the rollout's end
             buf.log_probs[t] = dist.log_prob(action).sum(-1)
 
@@ -277,6 +300,7 @@ class RolloutCollector:
                 self.episodes.extend(zip(self.ep_return[ended].tolist(), self.ep_length[ended].tolist()))
             self.ep_return[done] = 0.0
             self.ep_length[done] = 0
+            self.noise_age = torch.where(done, 0, self.noise_age + 1)
             self.prev_done = done if self.autoreset == AutoresetMode.NEXT_STEP else torch.zeros_like(done)
             self.last_obs = next_obs
             # The sum is non-finite iff an element is (or the sum overflows, itself divergence);

@@ -436,6 +436,44 @@ def test_collector_bootstraps_time_limits_and_counts_each_observation_once():
     env.close()
 
 
+def test_held_exploration_noise_keeps_its_direction_and_redraws_at_each_hold_and_episode():
+    import gymnasium as gym
+    from collections import deque
+    from agents.rollout import RolloutCollector
+
+    # 5-step episodes, NextStep autoreset: steps 0-4 one episode, 5 only resets, 6-11 the next.
+    env = gym.make_vec("Pendulum-v1", num_envs=2, vectorization_mode="sync", max_episode_steps=5)
+    policy = ActorCritic(3, env.single_action_space, actor_hidden=(8,), critic_hidden=(8,), log_std_init=-1.0)
+    torch.manual_seed(0)
+    collector = RolloutCollector(env, policy, deque(), noise_hold=3)
+    collector.reset(seed=0)
+    buf = RolloutBuffer(12, 2, 3, 1)
+    collector.collect(buf)
+    dist = policy.action_distribution(buf.obs)  # stored observations: what the actor saw
+    eps = ((buf.actions - dist.mean) / dist.stddev)[:, 0, 0]
+    # The stored log-probabilities score each action under its own step's distribution.
+    torch.testing.assert_close(buf.log_probs, dist.log_prob(buf.actions).sum(-1))
+    held = [(0, 1), (1, 2), (3, 4), (5, 6), (6, 7), (8, 9), (9, 10)]
+    redrawn = [(2, 3), (4, 5), (7, 8), (10, 11)]  # a hold ends (2, 7, 10) or an episode does (4)
+    for a, b in held:
+        assert eps[a].item() == pytest.approx(eps[b].item(), abs=1e-5), (a, b)
+    for a, b in redrawn:
+        assert abs(eps[a].item() - eps[b].item()) > 1e-3, (a, b)
+    # Worlds draw their own noise; and without a hold every step draws afresh.
+    assert abs(eps[0].item() - ((buf.actions - dist.mean) / dist.stddev)[0, 1, 0].item()) > 1e-3
+    fresh = RolloutCollector(env, policy, deque())
+    fresh.reset(seed=0)
+    fresh.collect(buf)
+    dist = policy.action_distribution(buf.obs)
+    eps = ((buf.actions - dist.mean) / dist.stddev)[:, 0, 0]
+    assert (eps[1:] - eps[:-1]).abs().min().item() > 1e-4
+    with pytest.raises(ValueError, match="noise_hold"):
+        RolloutCollector(env, policy, deque(), noise_hold=0)
+    with pytest.raises(ValueError, match="exploration_hold"):
+        PPOConfig(exploration_hold=0)
+    env.close()
+
+
 def test_amp_reaches_the_clips_only_through_the_documented_motion_lib():
     import gymnasium as gym
 

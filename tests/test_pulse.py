@@ -480,3 +480,25 @@ def test_the_latent_authority_benchmark_measures_a_checkpoint(pulse_path, tmp_pa
     assert result["noise_effect_std_2.0"] > result["noise_effect_std_0.1"] > 0
     assert 0 <= result["imitation_prior_mean"]["success_rate"] <= 1
     assert "| z from the prior's mean to the encoder's" in out.stdout
+
+
+def test_the_latent_steering_benchmark_compares_held_and_fresh_latents_and_searches_plans(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "latent_steering.py"
+    out = subprocess.run([sys.executable, str(script), "pulse", "--worlds", "12", "--stds", "0.37", "--search", "1",
+                          "--iterations", "3", "--out", str(tmp_path / "s.json")],
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    result = json.loads((tmp_path / "s.json").read_text())
+    held, white = result["rows"]
+    assert held["held"] and not white["held"] and held["worlds"] >= 8
+    # The shipped decoder: a latent held for a second carries the hand further than fresh ones.
+    assert held["shift_median"] > 1.5 * white["shift_median"] > 0
+    (found,) = result["search"]
+    # World 0 tries a = 0 first, so the search can only improve on it, and here it does.
+    assert found["best_closest"] < found["zero_closest"]
+    assert found["history"] == sorted(found["history"], reverse=True)
+    assert "| held | 0.37 |" in out.stdout

@@ -120,6 +120,24 @@ def test_hand_on_the_target_scores_one():
     env.close()
 
 
+def test_reach_reward_sharpness_widens_the_kernel_and_nothing_else():
+    np.testing.assert_allclose(reach_reward(np.zeros((1, 3)), np.array([[0.5, 0, 0]]), 1.0)[0], np.exp(-0.25))
+    envs = [gym.make_vec("SMPL/Reach-v0", num_envs=3, reward_sharpness=k) for k in (4.0, 1.0)]
+    out = []
+    for env in envs:
+        env.reset(seed=0)
+        out.append(env.step(np.zeros((3, 69))))
+    (obs4, r4, *_, info4), (obs1, r1, *_, info1) = out
+    np.testing.assert_array_equal(obs4, obs1)  # the same episode, scored with a wider kernel
+    d = info1["hand_distance"]
+    np.testing.assert_allclose(r1, np.exp(-d ** 2), rtol=1e-6)
+    np.testing.assert_allclose(r4, np.exp(-4 * d ** 2), rtol=1e-6)
+    for env in envs:
+        env.close()
+    with pytest.raises(ValueError, match="reward_sharpness"):
+        gym.make_vec("SMPL/Reach-v0", num_envs=1, reward_sharpness=0)
+
+
 def test_reach_targets_lie_in_range_and_resample_on_schedule():
     env = gym.make_vec("SMPL/Reach-v0", num_envs=16, resample_interval=(3, 3))
     obs, info = env.reset(seed=0)

@@ -12,7 +12,9 @@ Observation (float32, heading frame):
 | 0:358 | 358 | self observation (`smpl_envs.features.SELF_OBS_LAYOUT`) |
 | 358:361 | 3 | target position relative to the pelvis (m) |
 
-Reward (one term, `info["reward_reach"]`): exp(-4 ||p_hand - p_target||^2), right hand.
+Reward (one term, `info["reward_reach"]`): exp(-k ||p_hand - p_target||^2), right hand, with
+k = `reward_sharpness` (4, the paper's). A smaller k keeps a gradient toward targets the hand is
+far from (at 1.2 m, exp(-4 d^2) is 0.003); the evaluation's metrics do not depend on it.
 
 Episode: 300 steps (10 s); a fall ends it. Starts: the rest pose, or random frames of `motions=`.
 
@@ -32,20 +34,21 @@ import numpy as np
 from ..evaluation import EpisodeProtocol
 from ..features import self_obs, to_heading, xp
 from ..humanoid.skeleton import BODY_NAMES
-from .base import check_range
+from .base import check_number, check_range
 from .goal import GoalVecEnv, Schedule, check_interval
 
 HAND = BODY_NAMES.index("R_Hand")
 REACHED = 0.1  # m: a target counts as reached when the hand comes this close (evaluation)
+REWARD_SHARPNESS = 4.0  # k of exp(-k d^2) (REFERENCE section 5)
 REACH_LAYOUT = (("target_pos", 3, "target position relative to the pelvis (m)"),)
 
 
-def reach_reward(hand_pos, target):
+def reach_reward(hand_pos, target, sharpness: float = REWARD_SHARPNESS):
     """(reward (N,), hand distance (N,)) for hand and target positions (N, 3)."""
     d = hand_pos - target
     sq = (d * d).sum(-1)
     m = xp(sq)
-    return m.exp(-4.0 * sq), m.sqrt(sq)
+    return m.exp(-sharpness * sq), m.sqrt(sq)
 
 
 def reach_episode_metrics(log: dict) -> dict:
@@ -61,7 +64,8 @@ class ReachVecEnv(GoalVecEnv):
     """`gym.make_vec("SMPL/Reach-v0", num_envs=N, **kwargs)`.
 
     kwargs: target_range_xy ((-1, 1) m), target_range_z ((0.2, 2.0) m), resample_interval
-    ((50, 99) steps), and GoalVecEnv's (fall_height, head_height, motions, start, ...).
+    ((50, 99) steps), reward_sharpness (k of exp(-k d^2), REWARD_SHARPNESS), and GoalVecEnv's
+    (fall_height, head_height, motions, start, ...).
     """
 
     task_layout = {"task": REACH_LAYOUT}
@@ -69,7 +73,8 @@ class ReachVecEnv(GoalVecEnv):
     backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, target_range_xy=(-1.0, 1.0), target_range_z=(0.2, 2.0),
-                 resample_interval=(50, 99), **kwargs):
+                 resample_interval=(50, 99), reward_sharpness: float = REWARD_SHARPNESS, **kwargs):
+        self.reward_sharpness = check_number("reward_sharpness", reward_sharpness, positive=True)
         self.target_range_xy = check_range("target_range_xy", target_range_xy, -10.0, 10.0)
         self.target_range_z = check_range("target_range_z", target_range_z, 0.0, 3.0)
         interval = check_interval("resample_interval", resample_interval)
@@ -103,7 +108,7 @@ class ReachVecEnv(GoalVecEnv):
             self._resample(due, self.sim.qpos[due])
 
     def _evaluate(self, body, heading):
-        reward, _ = reach_reward(body.pos[:, HAND], self.target)
+        reward, _ = reach_reward(body.pos[:, HAND], self.target, self.reward_sharpness)
         return reward, {"reach": reward}, self._fallen(body), self.backend.zeros(self.num_envs, "bool")
 
     def _observe(self, body, heading):

@@ -20,7 +20,11 @@ closest to the target within the window, every world of an iteration one candida
 the same start; it reports the closest approach per target, against a = 0. A plan found here is
 open loop, so it bounds from below what a closed-loop task policy could do.
 
-    python benchmarks/latent_steering.py pulse --worlds 64 --search 12 --out runs/steering_pulse.json
+With --zero-eval it also runs Reach-v0's evaluation protocol (32 seeded episodes, starts on the
+walk and run clips as the reach recipes train) with a = 0, the prior's mean: the floor a trained
+latent task policy has to beat.
+
+    python benchmarks/latent_steering.py pulse --worlds 64 --search 24 --zero-eval --out runs/steering_pulse.json
 """
 
 from __future__ import annotations
@@ -126,6 +130,22 @@ def search(decoder, worlds: int, settle: int, segments: int, segment_steps: int,
             "plan_abs_mean": float(np.abs(best_plan).mean()), "plan_abs_max": float(np.abs(best_plan).max())}
 
 
+def zero_eval(decoder) -> dict:
+    """Reach-v0's evaluation of the a = 0 policy (module docstring)."""
+    import smpl_envs
+    from smpl_envs.latent import as_latent_decoder
+
+    dec = as_latent_decoder(decoder)
+
+    def policy(obs):
+        o = torch.as_tensor(obs, dtype=torch.float32)
+        with torch.no_grad():
+            return dec(o, torch.zeros(len(o), dec.latent_dim)).numpy()
+
+    r = smpl_envs.evaluate(policy, "SMPL/Reach-v0", motions=["walk", "run"], num_envs=8, progress=False)
+    return {k: r.summary[k] for k in ("no_fall", "hand_distance", "targets_reached")}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("checkpoint", help="a PULSE checkpoint (.pt), a run directory or a shipped name")
@@ -140,7 +160,8 @@ def main(argv=None) -> int:
     p.add_argument("--iterations", type=int, default=8)
     p.add_argument("--init-std", type=float, default=0.5, help="the search's first spread (per dimension)")
     p.add_argument("--elites", type=int, default=8)
-    p.add_argument("--skip-shift", action="store_true", help="only the search")
+    p.add_argument("--skip-shift", action="store_true", help="leave out the held/white comparison")
+    p.add_argument("--zero-eval", action="store_true", help="also evaluate a = 0 on Reach-v0's protocol")
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)
     if args.worlds < 2:
@@ -177,6 +198,10 @@ def main(argv=None) -> int:
               f"within 0.1 m {100 * np.mean(best < 0.1):.0f} %, within 0.2 m {100 * np.mean(best < 0.2):.0f} %; "
               f"the plans' |a|: mean {np.mean([f['plan_abs_mean'] for f in found]):.2f}, "
               f"largest {np.max([f['plan_abs_max'] for f in found]):.2f}")
+    if args.zero_eval:
+        z = result["zero_policy_reach"] = zero_eval(str(path))
+        print(f"\nReach-v0's evaluation with a = 0 (the prior's mean): {100 * z['no_fall']:.0f} % without a fall, "
+              f"hand distance {z['hand_distance']:.2f} m, {100 * z['targets_reached']:.1f} % of targets reached")
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=2))

@@ -40,15 +40,21 @@ import torch
 STDS = (0.37, 1.0, 2.0)
 
 
-def run(decoder, worlds: int, settle: int, steps: int, std: float, held: bool, seed: int) -> dict:
+def _reach_env(decoder, worlds: int, steps: int):
     import gymnasium as gym
 
     import smpl_envs  # noqa: F401  (registers the ids)
-    from smpl_envs.envs.reach import HAND
     from smpl_envs.wrappers import LatentAction
 
-    env = LatentAction(gym.make_vec("SMPL/Reach-v0", num_envs=worlds, max_episode_steps=settle + steps + 1),
-                       decoder)
+    # No target redraw inside the window: a search is about one target.
+    return LatentAction(gym.make_vec("SMPL/Reach-v0", num_envs=worlds, max_episode_steps=steps + 1,
+                                     resample_interval=(steps + 1, steps + 1)), decoder)
+
+
+def run(decoder, worlds: int, settle: int, steps: int, std: float, held: bool, seed: int) -> dict:
+    from smpl_envs.envs.reach import HAND
+
+    env = _reach_env(decoder, worlds, settle + steps)
     env.reset(seed=seed)
     rng = np.random.default_rng(seed)
     dim = env.single_action_space.shape[0]
@@ -77,17 +83,6 @@ def run(decoder, worlds: int, settle: int, steps: int, std: float, held: bool, s
             "shift_median": float(np.median(shift)), "shift_p90": float(np.quantile(shift, 0.9)),
             "hand_travel_median": float(np.median(travel)),
             "baseline_hand_travel": float(np.linalg.norm(end[0] - start[0]))}
-
-
-def _reach_env(decoder, worlds: int, steps: int):
-    import gymnasium as gym
-
-    import smpl_envs  # noqa: F401
-    from smpl_envs.wrappers import LatentAction
-
-    # No redraw inside the window: each search is about one target.
-    return LatentAction(gym.make_vec("SMPL/Reach-v0", num_envs=worlds, max_episode_steps=steps + 1,
-                                     resample_interval=(steps + 1, steps + 1)), decoder)
 
 
 def search(decoder, worlds: int, settle: int, segments: int, segment_steps: int, iterations: int,

@@ -300,7 +300,8 @@ class RolloutCollector:
                 self.episodes.extend(zip(self.ep_return[ended].tolist(), self.ep_length[ended].tolist()))
             self.ep_return[done] = 0.0
             self.ep_length[done] = 0
-            self.noise_age = torch.where(done, 0, self.noise_age + 1)
+            if self.noise_hold > 1:
+                self.noise_age = torch.where(done, 0, self.noise_age + 1)
             self.prev_done = done if self.autoreset == AutoresetMode.NEXT_STEP else torch.zeros_like(done)
             self.last_obs = next_obs
             # The sum is non-finite iff an element is (or the sum overflows, itself divergence);

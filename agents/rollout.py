@@ -57,13 +57,18 @@ class RolloutBuffer:
         for name in self.FIELDS:
             setattr(self, name, torch.zeros(n_steps, n_envs, device=self.device))
         self.extras: dict[str, torch.Tensor] = {}
+        self._carried: set[str] = set()  # extras that `transitions()` and its minibatches carry
         self._flat: dict[str, torch.Tensor] | None = None  # `transitions()`, once per rollout
 
-    def extra(self, name: str, dim: int) -> torch.Tensor:
-        """A named (n_steps, n_envs, dim) field an algorithm fills itself (allocated once)."""
+    def extra(self, name: str, dim: int, carry: bool = False) -> torch.Tensor:
+        """A named (n_steps, n_envs, dim) field an algorithm fills itself (allocated once).
+        `carry=True`: `transitions()` (and so every minibatch of the update) holds it too, one
+        row per transition, for a loss term of the update's own."""
         field = self.extras.get(name)
         if field is None or field.shape[-1] != dim:
             field = self.extras[name] = torch.zeros(self.n_steps, self.n_envs, dim, device=self.device)
+        if carry:
+            self._carried.add(name)
         return field
 
     def matches(self, n_steps: int, n_envs: int, obs_dim: int, act_dim: int) -> bool:
@@ -89,11 +94,12 @@ class RolloutBuffer:
 
     def transitions(self) -> dict[str, torch.Tensor]:
         """The valid transitions, flattened: obs, actions, log_probs, values, advantages, returns
-        (gathered once per rollout, after `compute_advantages`)."""
+        and the carried extras (gathered once per rollout, after `compute_advantages`)."""
         if self._flat is None:
             keep = self.valid_mask()
-            names = ("obs", "actions", "log_probs", "values", "advantages", "returns")
-            self._flat = {n: getattr(self, n).reshape(-1, *getattr(self, n).shape[2:])[keep] for n in names}
+            fields = {n: getattr(self, n) for n in ("obs", "actions", "log_probs", "values", "advantages", "returns")}
+            fields.update((n, self.extras[n]) for n in sorted(self._carried))
+            self._flat = {n: f.reshape(-1, *f.shape[2:])[keep] for n, f in fields.items()}
         return self._flat
 
     def minibatches(self, batch_size: int, count: int | None = None) -> Iterator[dict[str, torch.Tensor]]:

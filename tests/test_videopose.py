@@ -517,6 +517,46 @@ def test_supervised_pretraining_lowers_the_refinement_error():
                   device="cpu").pretrain_refinement(16)
 
 
+def test_the_supervised_loss_during_ppo_pairs_each_observation_with_its_truth_and_lowers_the_error():
+    from agents import SimPoEPPO
+    from agents.simpoe import OBS, TRUTH
+
+    # Without noise the estimate is the truth: each stored observation's estimate columns must be
+    # the truth stored beside it, across the resets a tight termination distance forces.
+    model = SimPoEPPO(ID, n_envs=4, env_kwargs={"motions": ["walk", "run"], "noise_scale": 0.0,
+                                                "termination_distance": 0.02},
+                      policy_kwargs={"iterations": 2, "refine_hidden": [64], "actor_hidden": [32], "critic_hidden": [32]},
+                      refine_aux_coef=1000.0, n_steps=24, batch_size=48, n_epochs=4, learning_rate=1e-3, verbose=0,
+                      seed=0, tensorboard=False, device="cpu")
+    model._start_collector(seed=0)
+    buf = model._collect()
+    data = buf.transitions()
+    assert buf.dones.sum() > 0  # resets happened inside the rollout
+    np.testing.assert_allclose(data["obs"][:, OBS["video/est_dof"]].numpy(), data[TRUTH].numpy(), atol=1e-6)
+    model.close()
+
+    model = SimPoEPPO(ID, n_envs=4, env_kwargs={"motions": ["walk", "run"]},
+                      policy_kwargs={"iterations": 2, "refine_hidden": [64], "actor_hidden": [32], "critic_hidden": [32]},
+                      refine_aux_coef=1000.0, n_steps=32, batch_size=64, n_epochs=4, learning_rate=1e-3, verbose=0,
+                      seed=0, tensorboard=False, device="cpu")
+    model._start_collector(seed=0)
+    data = model._collect().transitions()
+
+    def error() -> float:
+        with torch.no_grad():
+            return float(model.policy.refinement_error(data["obs"], data[TRUTH]).mean())
+
+    before = error()
+    model.learn(6 * 128, progress_bar=False)
+    assert error() < 0.8 * before
+    model.close()
+    with pytest.raises(ValueError, match="refine_aux_coef needs ground truth"):
+        lib = VideoLib([dataclasses.replace(degrade(load_motion("walk"), seed=0), truth=None)])
+        SimPoEPPO(ID, n_envs=2, env_kwargs={"video": lib}, policy_kwargs={"iterations": 1, "refine_hidden": [8],
+                  "actor_hidden": [8], "critic_hidden": [8]}, refine_aux_coef=1.0, n_steps=4, batch_size=8,
+                  verbose=0, tensorboard=False, device="cpu").learn(8, progress_bar=False)
+
+
 @pytest.mark.slow
 def test_the_recipes_smoke_profile_trains_saves_and_loads(tmp_path, monkeypatch):
     import agents

@@ -359,8 +359,7 @@ class KinematicRefinement(ValueCritic, Policy):
     # --- supervised regression of the refinement
     def refinement_error(self, obs: torch.Tensor, truth_angles: torch.Tensor) -> torch.Tensor:
         """(B,) mean squared distance (m^2) over the 24 bodies between the refined pose and the
-        true one, both posed by forward kinematics from the estimate's root: what pretraining
-        minimises."""
+        true one, both posed by forward kinematics from the estimate's root."""
         parts = split_observation(obs)
         angles, _, _, _ = self.refine(**parts)
         fk = self.refine.forward_kinematics
@@ -368,8 +367,21 @@ class KinematicRefinement(ValueCritic, Policy):
         true = fk(parts["root_pos"], parts["root_rot"], truth_angles)[0]
         return (pos - true).square().sum(-1).mean(-1)
 
+    def refinement_angle_error(self, obs: torch.Tensor, truth_angles: torch.Tensor) -> torch.Tensor:
+        """(B,) mean squared difference (rad^2, wrapped to [-pi, pi)) over the 69 hinges between
+        the refined joint angles and the true ones."""
+        angles, _, _, _ = self.refine(**split_observation(obs))
+        d = torch.remainder(angles - truth_angles + np.pi, 2 * np.pi) - np.pi
+        return d.square().mean(-1)
+
 
 # ---------------------------------------------------------------------------------------- training
+TRUTH = "next_truth_dof_pos"  # info: the true joint angles of the frame each observation previews
+# The refinement's supervised losses: (policy method, unit of its root mean square, its scale to that unit).
+REFINE_TARGETS = {"angles": ("refinement_angle_error", "deg", 180.0 / np.pi),
+                  "positions": ("refinement_error", "mm", 1000.0)}
+
+
 @dataclasses.dataclass
 class SimPoEPPOConfig(PPOConfig):
     """PPO's hyperparameters and the refinement's supervised pretraining."""
@@ -382,11 +394,18 @@ class SimPoEPPOConfig(PPOConfig):
     """passes over those pairs"""
     refine_pretrain_lr: float = 1e-3
     """Adam step size of the pretraining"""
+    refine_target: str = "angles"
+    """what the refinement's supervised loss (pretraining and `refine_aux_coef`) regresses:
+    "angles", the true joint angles (`refinement_angle_error`, rad^2), or "positions", the true
+    body positions (`refinement_error`, m^2). Positions leave a limb's twist free (it moves no
+    joint), and the tracker falls more on such a refinement than on none: measured at step 0
+    (corpus:test, 184 sequences), 4.9 % without a fall after position pretraining, 12.0 % with the
+    untrained unit and 18.5 % after angle pretraining (docs/tasks/videopose.md)"""
     refine_aux_coef: float = 0.0
-    """weight of the refinement's supervised loss (`refinement_error`, m^2) in every PPO
-    minibatch, on the true pose the env reports with each observation (0: PPO's loss alone);
-    needs an env with ground truth. Why: PPO's gradient alone undoes the pretraining (measured:
-    28 mm rms body error after it, 62 mm after 5M steps of joint training)"""
+    """weight of the refinement's supervised loss in every PPO minibatch, on the true pose the
+    env reports with each observation (0: PPO's loss alone); needs an env with ground truth.
+    Why: PPO's gradient alone undoes the pretraining (measured, positions: 28 mm rms body error
+    after it, 62 mm after 5M steps of joint training, 36 mm with this at 1000 after 0.85M)"""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -396,9 +415,8 @@ class SimPoEPPOConfig(PPOConfig):
                 raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
         if not self.refine_aux_coef >= 0:
             raise ValueError(f"refine_aux_coef must be >= 0, got {self.refine_aux_coef!r}")
-
-
-TRUTH = "next_truth_dof_pos"  # info: the true joint angles of the frame each observation previews
+        if self.refine_target not in REFINE_TARGETS:
+            raise ValueError(f"refine_target must be one of {', '.join(REFINE_TARGETS)}, got {self.refine_target!r}")
 
 
 class TruthLabels(RolloutHooks):
@@ -449,8 +467,8 @@ class SimPoEPPO(PPO):
 
     def pretrain_refinement(self, samples: int) -> dict[str, float]:
         """Regress the refinement unit on `samples` (observation, true next pose) pairs of the
-        attached env (`KinematicRefinement.refinement_error`). Returns (and logs) the error
-        before and after, in mm (root mean square over bodies)."""
+        attached env, on `refine_target`'s loss. Returns (and logs) the root mean square body
+        error (mm) and joint-angle error (deg) before and after."""
         pol, env, cfg = self.policy, self.env, self.config
         if not isinstance(pol, KinematicRefinement):
             raise ValueError(f"refine_pretrain_samples needs the KinematicRefinement policy, not {type(pol).__name__}")
@@ -465,31 +483,37 @@ class SimPoEPPO(PPO):
         self._replicate()
         sync = self._gradient_sync(pol.refine, opt)
 
-        def rms_mm() -> float:
+        def rms() -> dict[str, float]:
+            out = {}
             with torch.no_grad():
-                err = torch.cat([pol.refinement_error(obs[i:i + 4096], truth[i:i + 4096])
-                                 for i in range(0, len(obs), 4096)])
-            return float(err.mean().sqrt() * 1000.0)
+                for method, unit, scale in REFINE_TARGETS.values():
+                    err = torch.cat([getattr(pol, method)(obs[i:i + 4096], truth[i:i + 4096])
+                                     for i in range(0, len(obs), 4096)])
+                    out[unit] = float(err.mean().sqrt() * scale)
+            return out
 
-        before = rms_mm()
+        before = rms()
+        loss_of = getattr(pol, REFINE_TARGETS[cfg.refine_target][0])
         from .rollout import torch_threads
 
         with torch_threads(self.update_threads):
             for _ in range(cfg.refine_pretrain_epochs):
                 for mb in self._minibatches(data, cfg.batch_size):
-                    loss = sync.loss(lambda: pol.refinement_error(mb["obs"], mb["truth"]).mean())
+                    loss = sync.loss(lambda: loss_of(mb["obs"], mb["truth"]).mean())
                     opt.zero_grad(set_to_none=True)
                     sync.backward(loss)
                     torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
                     opt.step()
-        after = rms_mm()
+        after = rms()
         self.refine_pretrained = True
-        self.logger.record("pretrain/refine_rms_mm_before", before)
-        self.logger.record("pretrain/refine_rms_mm_after", after)
+        for unit in before:
+            self.logger.record(f"pretrain/refine_rms_{unit}_before", before[unit])
+            self.logger.record(f"pretrain/refine_rms_{unit}_after", after[unit])
         if self.verbose and self.data_parallel.main:
-            print(f"refinement pretraining on {len(obs)} frames: {before:.1f} mm -> {after:.1f} mm (rms body error)")
+            print(f"refinement pretraining on {len(obs)} frames ({cfg.refine_target}): {before['mm']:.1f} -> "
+                  f"{after['mm']:.1f} mm rms body error, {before['deg']:.1f} -> {after['deg']:.1f} deg rms joint angle error")
         self._collector = None  # the pairs came from stepping the env: the first rollout resets it
-        return {"before_mm": before, "after_mm": after}
+        return {"before_mm": before["mm"], "after_mm": after["mm"], "before_deg": before["deg"], "after_deg": after["deg"]}
 
     @torch.no_grad()
     def _pretraining_pairs(self, env, samples: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -518,7 +542,7 @@ class SimPoEPPO(PPO):
         if coef <= 0 or self.policy.iterations == 0:
             return terms
         # The stored observations are normalised except the refinement's columns (kept raw).
-        error = self.policy.refinement_error(mb["obs"], mb[TRUTH]).mean()
+        error = getattr(self.policy, REFINE_TARGETS[self.config.refine_target][0])(mb["obs"], mb[TRUTH]).mean()
         self._refine_errors.append(float(error.detach()))
         return (terms[0] + coef * error, *terms[1:])
 
@@ -526,7 +550,8 @@ class SimPoEPPO(PPO):
         self._refine_errors: list[float] = []
         super()._update(buf)
         if self._refine_errors:
-            self.logger.record("train/refine_rms_mm", float(np.sqrt(np.mean(self._refine_errors)) * 1000.0))
+            _, unit, scale = REFINE_TARGETS[self.config.refine_target]
+            self.logger.record(f"train/refine_rms_{unit}", float(np.sqrt(np.mean(self._refine_errors)) * scale))
 
     def _extra_state(self) -> dict:
         return {"refine_pretrained": self.refine_pretrained}

@@ -500,15 +500,16 @@ def test_a_warm_start_from_the_tracker_acts_as_the_tracker_on_the_estimate(video
         m.close()
 
 
-def test_supervised_pretraining_lowers_the_refinement_error():
+@pytest.mark.parametrize("target, unit", [("angles", "deg"), ("positions", "mm")])
+def test_supervised_pretraining_lowers_the_refinement_error(target, unit):
     from agents import SimPoEPPO
 
     model = SimPoEPPO(ID, n_envs=8, env_kwargs={"motions": ["walk", "run"]}, policy_kwargs={
         "iterations": 2, "refine_hidden": [64], "actor_hidden": [32], "critic_hidden": [32]},
-        refine_pretrain_samples=128, refine_pretrain_epochs=6, batch_size=64, verbose=0, seed=0,
-        tensorboard=False, device="cpu")
+        refine_pretrain_samples=128, refine_pretrain_epochs=6, refine_target=target, batch_size=64, verbose=0,
+        seed=0, tensorboard=False, device="cpu")
     out = model.pretrain_refinement(128)
-    assert out["after_mm"] < out["before_mm"] and model.refine_pretrained
+    assert out[f"after_{unit}"] < out[f"before_{unit}"] and model.refine_pretrained
     model.close()
     with pytest.raises(ValueError, match="ground truth"):
         lib = VideoLib([dataclasses.replace(degrade(load_motion("walk"), seed=0), truth=None)])
@@ -544,12 +545,14 @@ def test_the_supervised_loss_during_ppo_pairs_each_observation_with_its_truth_an
 
     def error() -> float:
         with torch.no_grad():
-            return float(model.policy.refinement_error(data["obs"], data[TRUTH]).mean())
+            return float(model.policy.refinement_angle_error(data["obs"], data[TRUTH]).mean())
 
     before = error()
     model.learn(6 * 128, progress_bar=False)
     assert error() < 0.8 * before
     model.close()
+    with pytest.raises(ValueError, match="refine_target must be one of angles, positions"):
+        SimPoEPPO(ID, n_envs=2, env_kwargs={"motions": ["walk"]}, refine_target="joints", verbose=0, tensorboard=False)
     with pytest.raises(ValueError, match="refine_aux_coef needs ground truth"):
         lib = VideoLib([dataclasses.replace(degrade(load_motion("walk"), seed=0), truth=None)])
         SimPoEPPO(ID, n_envs=2, env_kwargs={"video": lib}, policy_kwargs={"iterations": 1, "refine_hidden": [8],

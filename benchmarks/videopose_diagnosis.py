@@ -1,0 +1,133 @@
+"""What makes a body following video input fall, and how accurate a SimPoE policy's refinement is.
+
+    python benchmarks/videopose_diagnosis.py knobs                      # which estimator error fells the tracker
+    python benchmarks/videopose_diagnosis.py refinement videopose runs/videopose_aux
+
+`knobs`: the generalist tracker (`--tracker`) follows the noisy input of `--sequences` evenly
+spaced corpus:test sequences (the report's, `videopose_report.py`) with every knob of the estimator
+model at its default, then with one knob (or group) at zero at a time, and with the true joint
+rotations or the true root orientation put back into the estimate. The no-fall share and MPJPE of
+each row say which error the physics has to reject: a knob whose removal lifts no-fall most is
+what a video policy must learn to see through.
+
+`refinement`: for each checkpoint (a run directory, a .pt file or a shipped name) of a
+`KinematicRefinement` policy, the root-mean-square body error (mm, 24 bodies, posed from the
+estimate's root) of the estimate and of the policy's refined estimate against the truth, on
+`--frames` observations of its own rollouts on corpus:train (the distribution it trains on). The
+supervised pretraining sets this error; PPO's loss alone moves it (`refine_aux_coef`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+import smpl_envs
+from smpl_envs.motion import load_motions
+from smpl_envs.motion.estimator_noise import EstimatorNoise, degrade
+from smpl_envs.motion.video_input import VideoInput, VideoLib
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from videopose_report import TrackerOnVideo, evenly_spaced  # noqa: E402
+
+KNOB_ROWS = (
+    ("every error (the default)", {}),
+    ("without per-frame rotation jitter", {"jitter_rotation": 0.0}),
+    ("without the slow rotation error", {"rotation_error": 0.0}),
+    ("without depth drift", {"depth_drift": 0.0}),
+    ("without foot sliding", {"foot_sliding": 0.0}),
+    ("without ground penetration", {"ground_penetration": 0.0}),
+    ("the slow rotation error alone", {"jitter_rotation": 0.0, "jitter_translation": 0.0, "depth_drift": 0.0,
+                                       "foot_sliding": 0.0, "ground_penetration": 0.0}),
+)
+
+
+def _true_joints(v: VideoInput) -> VideoInput:
+    q = v.local_quat.copy()
+    q[:, 1:] = v.truth.local_quat[:, 1:]
+    return dataclasses.replace(v, local_quat=q)
+
+
+def _true_root_orientation(v: VideoInput) -> VideoInput:
+    q = v.local_quat.copy()
+    q[:, 0] = v.truth.local_quat[:, 0]
+    return dataclasses.replace(v, local_quat=q)
+
+
+def knobs(args) -> None:
+    from agents.run import _load_target  # the command line's own lookup of runs and names
+
+    lib = load_motions(args.split)
+    indices = evenly_spaced(lib.num_motions, args.sequences)
+    tracker = TrackerOnVideo(_load_target(args.tracker, "best", "cpu")[0])
+
+    def inputs(noise):  # sequence i of the split: the stream (0, i), as the report seeds it
+        return [degrade(lib.motion(int(i)), noise, seed=np.random.default_rng(np.random.SeedSequence([0, int(i)])))
+                for i in indices]
+
+    rows = [(name, inputs(EstimatorNoise.make(knob))) for name, knob in KNOB_ROWS]
+    default = rows[0][1]
+    rows += [("every error, true joint rotations", [_true_joints(v) for v in default]),
+             ("every error, true root orientation", [_true_root_orientation(v) for v in default])]
+    print(f"**The tracker ({args.tracker}) on {len(indices)} {args.split} sequences**\n")
+    print("| estimate | no fall | MPJPE | PA-MPJPE |\n|---|---|---|---|")
+    for name, videos in rows:
+        s = smpl_envs.evaluate(tracker, "SMPL/VideoPose-v0", motions=VideoLib(videos), num_envs=args.num_envs,
+                               progress=False).summary
+        print(f"| {name} | {100 * s['no_fall']:.1f} % | {s['mpjpe']:.1f} | {s['pa_mpjpe']:.1f} |", flush=True)
+
+
+@torch.no_grad()
+def refinement(args) -> None:
+    from agents.run import _load_target
+    from agents.simpoe import TRUTH, KinematicRefinement, split_observation
+
+    print("| checkpoint | estimate, rms mm | refined, rms mm |\n|---|---|---|")
+    for target in args.checkpoints:
+        agent = _load_target(target, "last", "cpu")[0]
+        pol = agent.policy
+        if not isinstance(pol, KinematicRefinement):
+            raise SystemExit(f"{target}: a {type(pol).__name__} policy, not SimPoE's KinematicRefinement")
+        env = gym.make_vec("SMPL/VideoPose-v0", num_envs=32, **{**agent.env_kwargs, "motions": args.motions})
+        obs, info = env.reset(seed=args.seed)
+        xs, ys = [], []
+        while 32 * len(xs) < args.frames:
+            xs.append(torch.as_tensor(np.asarray(obs), dtype=torch.float32))
+            ys.append(torch.as_tensor(np.asarray(info[TRUTH]), dtype=torch.float32))
+            obs, _, _, _, info = env.step(agent(obs))
+        env.close()
+        x, y = torch.cat(xs), torch.cat(ys)
+        refined = pol.refinement_error(x, y).mean().sqrt() * 1000.0
+        parts = split_observation(x)
+        fk = pol.refine.forward_kinematics
+        est = (fk(parts["root_pos"], parts["root_rot"], parts["angles"])[0]
+               - fk(parts["root_pos"], parts["root_rot"], y)[0]).square().sum(-1).mean(-1).mean().sqrt() * 1000.0
+        print(f"| {target} | {est:.1f} | {refined:.1f} |", flush=True)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="what", required=True)
+    k = sub.add_parser("knobs", help="the tracker's falls with each estimator error removed")
+    k.add_argument("--tracker", default="tracker")
+    k.add_argument("--split", default="corpus:test")
+    k.add_argument("--sequences", type=int, default=64)
+    k.add_argument("--num-envs", type=int, default=16)
+    r = sub.add_parser("refinement", help="a SimPoE policy's refinement error against the truth")
+    r.add_argument("checkpoints", nargs="+")
+    r.add_argument("--motions", default="corpus:train")
+    r.add_argument("--frames", type=int, default=3200)
+    r.add_argument("--seed", type=int, default=3)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    knobs(args) if args.what == "knobs" else refinement(args)
+
+
+if __name__ == "__main__":
+    main()

@@ -4,7 +4,8 @@ The loop, the env, the policy, rollouts and checkpoints are the on-policy base's
 (`on_policy.OnPolicyAlgorithm`); PPO is its settings (`PPOConfig`) and its update: `n_epochs` of
 clipped-surrogate minibatch steps over each rollout. Everything PHC tunes is a setting: GAE,
 value normalisation (the policy's), the clipped surrogate and value clip, the bounds loss on the
-action mean, gradient clipping, minibatches and epochs, a target-KL stop; the actor-critic's own
+action mean, gradient clipping, minibatches and epochs, a target-KL stop, a critic-only warm-up
+for warm starts; the actor-critic's own
 (fixed or learned action std, observation normalisation, separate actor and critic MLPs) are the
 policy's arguments (`networks.ActorCritic`).
 
@@ -41,6 +42,10 @@ class PPOConfig(OnPolicyConfig):
     """where that penalty starts (PHC: 1.1; PULSE's latent tasks: 1)"""
     target_kl: float | None = None
     """stop an update's epochs early once the approximate KL exceeds 1.5x this"""
+    critic_warmup: int = 0
+    """env steps at the start of training in which only the critic learns (the policy's loss is
+    left out of the update): a warm-started policy facing a new reward is not pushed about by
+    advantages from a critic that has not learnt that reward yet"""
     normalize_advantage: bool = True
     """per-minibatch advantage standardisation"""
 
@@ -51,6 +56,7 @@ class PPO(OnPolicyAlgorithm):
     as keyword arguments."""
 
     config_class = PPOConfig
+    _critic_only = False  # this update leaves the policy's loss out (`critic_warmup`)
 
     def _update(self, buf: RolloutBuffer) -> None:
         cfg, pol = self.config, self.policy
@@ -59,6 +65,9 @@ class PPO(OnPolicyAlgorithm):
         stats: dict[str, list[float]] = {k: [] for k in ("policy_loss", "value_loss", "entropy", "bounds_loss",
                                                          "approx_kl", "clip_fraction", "grad_norm")}
         stop = False
+        self._critic_only = self.num_timesteps <= cfg.critic_warmup
+        if cfg.critic_warmup:
+            self.logger.record("train/critic_only", float(self._critic_only))
         sync = self._gradient_sync(pol, self.optimizer)  # averages gradients across a job's ranks
         for _ in range(cfg.n_epochs):
             for mb in self._minibatches(data, cfg.batch_size):
@@ -119,7 +128,10 @@ class PPO(OnPolicyAlgorithm):
         mu = ev.mean
         bound = cfg.bounds_loss_limit
         bounds_loss = ((mu - bound).clamp(min=0).square() + (mu + bound).clamp(max=0).square()).sum(-1).mean()
-        loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy + cfg.bounds_loss_coef * bounds_loss
+        if self._critic_only:
+            loss = cfg.vf_coef * value_loss
+        else:
+            loss = policy_loss + cfg.vf_coef * value_loss - cfg.ent_coef * entropy + cfg.bounds_loss_coef * bounds_loss
         return loss, policy_loss, value_loss, entropy, bounds_loss, ratio, log_ratio
 
     def _update_extra(self, buf: RolloutBuffer) -> None:

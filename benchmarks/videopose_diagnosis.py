@@ -2,6 +2,7 @@
 
     python benchmarks/videopose_diagnosis.py knobs                      # which estimator error fells the tracker
     python benchmarks/videopose_diagnosis.py refinement videopose runs/videopose_aux
+    python benchmarks/videopose_diagnosis.py step0                      # the recipe's policy before PPO
 
 `knobs`: the generalist tracker (`--tracker`) follows the noisy input of `--sequences` evenly
 spaced corpus:test sequences (the report's, `videopose_report.py`) with every knob of the estimator
@@ -15,6 +16,11 @@ what a video policy must learn to see through.
 estimate's root) of the estimate and of the policy's refined estimate against the truth, on
 `--frames` observations of its own rollouts on corpus:train (the distribution it trains on). The
 supervised pretraining sets this error; PPO's loss alone moves it (`refine_aux_coef`).
+
+`step0`: the recipe's policy (`videopose_ppo`: the tracker's weights, the refinement unit) before
+any PPO update, evaluated on `--motions` (corpus:test, every sequence, as the runs evaluate): with
+the untrained unit (damped Gauss-Newton on the keypoints), and after the supervised pretraining on
+each `refine_target`. What the refinement hands the tracker decides how often it falls.
 """
 
 from __future__ import annotations
@@ -111,6 +117,28 @@ def refinement(args) -> None:
         print(f"| {target} | {est:.1f} | {refined:.1f} |", flush=True)
 
 
+def step0(args) -> None:
+    from agents.recipes import load_recipe
+    from agents.run import new_agent
+
+    print(f"**The recipe's policy before PPO, {args.motions}**\n")
+    print("| refinement | rms body error (mm) | rms joint-angle error (deg) | no fall | MPJPE | PA-MPJPE |\n"
+          "|---|---|---|---|---|---|")
+    for target in (None, "positions", "angles"):
+        recipe = load_recipe("videopose_ppo", overrides=[f"agent.hyperparams.refine_target={target or 'angles'}"])
+        agent = new_agent(recipe, verbose=0, log_dir=None, tensorboard=False, update_threads=args.threads)
+        errors = ("-", "-")
+        if target is not None:
+            out = agent.pretrain_refinement(recipe["agent"]["hyperparams"]["refine_pretrain_samples"])
+            errors = (f"{out['before_mm']:.1f} -> {out['after_mm']:.1f}", f"{out['before_deg']:.1f} -> {out['after_deg']:.1f}")
+        s = smpl_envs.evaluate(agent, "SMPL/VideoPose-v0", motions=args.motions, num_envs=args.num_envs,
+                               progress=False).summary
+        name = "untrained (damped Gauss-Newton)" if target is None else f"pretrained on {target}"
+        print(f"| {name} | {errors[0]} | {errors[1]} | {100 * s['no_fall']:.1f} % | {s['mpjpe']:.1f} | "
+              f"{s['pa_mpjpe']:.1f} |", flush=True)
+        agent.close()
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -124,9 +152,13 @@ def main(argv=None) -> None:
     r.add_argument("--motions", default="corpus:train")
     r.add_argument("--frames", type=int, default=3200)
     r.add_argument("--seed", type=int, default=3)
+    z = sub.add_parser("step0", help="the recipe's policy before PPO, by refinement pretraining target")
+    z.add_argument("--motions", default="corpus:test")
+    z.add_argument("--num-envs", type=int, default=16)
+    z.add_argument("--threads", type=int, default=2)
     args = parser.parse_args(argv)
-    torch.set_num_threads(1)
-    knobs(args) if args.what == "knobs" else refinement(args)
+    torch.set_num_threads(getattr(args, "threads", 1) if args.what == "step0" else 1)
+    {"knobs": knobs, "refinement": refinement, "step0": step0}[args.what](args)
 
 
 if __name__ == "__main__":

@@ -108,3 +108,14 @@ def test_a_shipped_name_initialises_a_recovery_run():
     torch.testing.assert_close(agent.policy.state_dict()["actor.0.weight"],
                                agents.load_policy(agents.recipes.find_checkpoint("clips")).state_dict()["actor.0.weight"])
     agent.close()
+
+
+def test_critic_warmup_trains_only_the_critic_until_its_step_count():
+    agent = new_agent(recipe(f"agent.init={SOURCE}", "agent.hyperparams.critic_warmup=16"), verbose=0, device="cpu")
+    before = {k: v.clone() for k, v in agent.policy.state_dict().items()}
+    agent.learn(16, progress_bar=False)  # one rollout of 2 worlds x 8 steps: inside the warm-up
+    after = agent.policy.state_dict()
+    assert all(torch.equal(after[k], v) for k, v in before.items() if k.startswith(("actor.", "log_std")))
+    assert any(not torch.equal(after[k], v) for k, v in before.items() if k.startswith("critic."))
+    agent.learn(16, progress_bar=False, reset_num_timesteps=False)  # past it: the policy learns too
+    assert any(not torch.equal(agent.policy.state_dict()[k], v) for k, v in before.items() if k.startswith("actor."))

@@ -360,8 +360,13 @@ class KinematicRefinement(ValueCritic, Policy):
     def refinement_error(self, obs: torch.Tensor, truth_angles: torch.Tensor) -> torch.Tensor:
         """(B,) mean squared distance (m^2) over the 24 bodies between the refined pose and the
         true one, both posed by forward kinematics from the estimate's root."""
+        angles, _, _, _ = self.refine(**split_observation(obs))
+        return self.body_error(obs, angles, truth_angles)
+
+    def body_error(self, obs: torch.Tensor, angles: torch.Tensor, truth_angles: torch.Tensor) -> torch.Tensor:
+        """(B,) mean squared distance (m^2) over the 24 bodies between the poses of `angles` and
+        of `truth_angles`, both posed by forward kinematics from the estimate's root in `obs`."""
         parts = split_observation(obs)
-        angles, _, _, _ = self.refine(**parts)
         fk = self.refine.forward_kinematics
         pos = fk(parts["root_pos"], parts["root_rot"], angles)[0]
         true = fk(parts["root_pos"], parts["root_rot"], truth_angles)[0]

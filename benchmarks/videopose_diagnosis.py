@@ -36,11 +36,11 @@ import torch
 
 import smpl_envs
 from smpl_envs.motion import load_motions
-from smpl_envs.motion.estimator_noise import EstimatorNoise, degrade
+from smpl_envs.motion.estimator_noise import EstimatorNoise
 from smpl_envs.motion.video_input import VideoInput, VideoLib
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from videopose_report import TrackerOnVideo, evenly_spaced  # noqa: E402
+from videopose_report import TrackerOnVideo, degraded, evenly_spaced  # noqa: E402
 
 KNOB_ROWS = (
     ("every error (the default)", {}),
@@ -73,11 +73,7 @@ def knobs(args) -> None:
     indices = evenly_spaced(lib.num_motions, args.sequences)
     tracker = TrackerOnVideo(_load_target(args.tracker, "best", "cpu")[0])
 
-    def inputs(noise):  # sequence i of the split: the stream (0, i), as the report seeds it
-        return [degrade(lib.motion(int(i)), noise, seed=np.random.default_rng(np.random.SeedSequence([0, int(i)])))
-                for i in indices]
-
-    rows = [(name, inputs(EstimatorNoise.make(knob))) for name, knob in KNOB_ROWS]
+    rows = [(name, degraded(lib, indices, EstimatorNoise.make(knob))) for name, knob in KNOB_ROWS]
     default = rows[0][1]
     rows += [("every error, true joint rotations", [_true_joints(v) for v in default]),
              ("every error, true root orientation", [_true_root_orientation(v) for v in default])]
@@ -110,10 +106,7 @@ def refinement(args) -> None:
         env.close()
         x, y = torch.cat(xs), torch.cat(ys)
         refined = pol.refinement_error(x, y).mean().sqrt() * 1000.0
-        parts = split_observation(x)
-        fk = pol.refine.forward_kinematics
-        est = (fk(parts["root_pos"], parts["root_rot"], parts["angles"])[0]
-               - fk(parts["root_pos"], parts["root_rot"], y)[0]).square().sum(-1).mean(-1).mean().sqrt() * 1000.0
+        est = pol.body_error(x, split_observation(x)["angles"], y).mean().sqrt() * 1000.0
         print(f"| {target} | {est:.1f} | {refined:.1f} |", flush=True)
 
 

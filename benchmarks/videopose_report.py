@@ -48,11 +48,13 @@ COLUMNS = (("no fall", "no_fall", True), ("MPJPE", "mpjpe", False), ("PA-MPJPE",
 def video_input(split: str, indices: np.ndarray, scale: float, seed: int = 0) -> VideoLib:
     """The split's clips `indices` degraded at `scale` x the default noise, clip i of the split
     with the stream (seed, i), as `estimator_noise.degrade_library` seeds the whole split."""
-    lib = load_motions(split)
-    noise = EstimatorNoise().scaled(scale)
-    inputs = [degrade(lib.motion(int(i)), noise, seed=np.random.default_rng(np.random.SeedSequence([seed, int(i)])))
-              for i in indices]
-    return VideoLib(inputs)
+    return VideoLib(degraded(load_motions(split), indices, EstimatorNoise().scaled(scale), seed))
+
+
+def degraded(lib, indices: np.ndarray, noise: EstimatorNoise, seed: int = 0) -> list:
+    """VideoInputs of clips `indices` of `lib` degraded by `noise`, clip i with the stream (seed, i)."""
+    return [degrade(lib.motion(int(i)), noise, seed=np.random.default_rng(np.random.SeedSequence([seed, int(i)])))
+            for i in indices]
 
 
 def evenly_spaced(n_total: int, n: int | None) -> np.ndarray:

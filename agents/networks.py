@@ -78,6 +78,9 @@ class ActionEval(NamedTuple):
     entropy: torch.Tensor   # (B,) entropy of the current action distribution
     mean: torch.Tensor      # (B, act_dim) action mean, for the bounds loss
     value: torch.Tensor     # (B,) critic output in its training units (`Policy.value_targets`)
+    # What the policy computed on the way that an agent's own loss terms may reuse instead of
+    # running the network twice (agents.simpoe: the refined joint angles); None: nothing.
+    extras: dict[str, torch.Tensor] | None = None
 
 
 class Policy(nn.Module):

@@ -18,6 +18,7 @@ import dataclasses
 import numpy as np
 import torch
 
+from .networks import ActionEval
 from .on_policy import OnPolicyAlgorithm, OnPolicyConfig
 from .optim import flush_subnormals_
 from .rollout import RolloutBuffer
@@ -106,8 +107,12 @@ class PPO(OnPolicyAlgorithm):
 
     def _loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
         """(loss, policy loss, value loss, entropy, bounds loss, ratio, log ratio) of a minibatch."""
+        return self._ppo_loss(mb, self.policy.evaluate_actions(mb["obs"], mb["actions"]))
+
+    def _ppo_loss(self, mb: dict[str, torch.Tensor], ev: ActionEval) -> tuple[torch.Tensor, ...]:
+        """`_loss`'s terms from the policy's evaluation of the minibatch, for subclasses that add
+        terms of their own to the same forward pass."""
         cfg, pol = self.config, self.policy
-        ev = pol.evaluate_actions(mb["obs"], mb["actions"])
         log_ratio = ev.log_prob - mb["log_probs"]
         ratio = log_ratio.exp()
         adv = mb["advantages"]

@@ -59,7 +59,7 @@ from smpl_envs.features import SELF_OBS_LAYOUT, layout_slices
 from smpl_envs.humanoid.skeleton import ACTION_SCALE, MEAN_SKELETON, NUM_BODIES, NUM_HINGES, PARENTS
 from smpl_envs.video_features import VIDEO_TASK_LAYOUT
 
-from .networks import Policy, ValueCritic, _sizes, mlp
+from .networks import ActionEval, Policy, ValueCritic, _sizes, mlp
 from .normalizer import RunningNorm
 from .policies import register_policy
 from .ppo import PPO, PPOConfig
@@ -290,15 +290,26 @@ class KinematicRefinement(ValueCritic, Policy):
         return angles, parts["angles"], grad, before, after
 
     def distribution(self, nobs: torch.Tensor) -> Normal:
+        return self._distribution(nobs)[0]
+
+    def _distribution(self, nobs: torch.Tensor) -> tuple[Normal, torch.Tensor]:
+        """(the action distribution, the refined angles (B, 69) it is centred on)."""
         angles, est, grad, _, _ = self.refined(nobs)
         feat = torch.cat([self.features(nobs), angles, GRAD_FEATURE_SCALE * grad.reshape(len(nobs), -1)], -1)
         mu = self.actor(feat)
         offset = (angles - est) / self._residual_unit
         mu = torch.cat([mu[:, :NUM_HINGES] + offset, mu[:, NUM_HINGES:]], -1)
-        return Normal(mu, self.log_std.exp().expand_as(mu), validate_args=False)
+        return Normal(mu, self.log_std.exp().expand_as(mu), validate_args=False), angles
 
     def action_distribution(self, nobs: torch.Tensor) -> Normal:
         return self.distribution(nobs)
+
+    def evaluate_actions(self, nobs: torch.Tensor, actions: torch.Tensor) -> ActionEval:
+        """ValueCritic's scoring, with the refined angles in `extras["refined_angles"]` so that
+        the refinement's supervised loss reuses this forward pass."""
+        dist, angles = self._distribution(nobs)
+        return ActionEval(dist.log_prob(actions).sum(-1), dist.entropy().sum(-1), dist.mean,
+                          self.critic_output(nobs), {"refined_angles": angles})
 
     def forward(self, nobs: torch.Tensor):
         return self.distribution(nobs), self.value(nobs)
@@ -357,10 +368,13 @@ class KinematicRefinement(ValueCritic, Policy):
         return copied, [k for k in self.state_dict() if k not in copied]
 
     # --- supervised regression of the refinement
-    def refinement_error(self, obs: torch.Tensor, truth_angles: torch.Tensor) -> torch.Tensor:
+    def refinement_error(self, obs: torch.Tensor, truth_angles: torch.Tensor,
+                         angles: torch.Tensor | None = None) -> torch.Tensor:
         """(B,) mean squared distance (m^2) over the 24 bodies between the refined pose and the
-        true one, both posed by forward kinematics from the estimate's root."""
-        angles, _, _, _ = self.refine(**split_observation(obs))
+        true one, both posed by forward kinematics from the estimate's root. `angles`: the
+        refined angles when the caller has them already."""
+        if angles is None:
+            angles = self.refine(**split_observation(obs))[0]
         return self.body_error(obs, angles, truth_angles)
 
     def body_error(self, obs: torch.Tensor, angles: torch.Tensor, truth_angles: torch.Tensor) -> torch.Tensor:
@@ -372,10 +386,12 @@ class KinematicRefinement(ValueCritic, Policy):
         true = fk(parts["root_pos"], parts["root_rot"], truth_angles)[0]
         return (pos - true).square().sum(-1).mean(-1)
 
-    def refinement_angle_error(self, obs: torch.Tensor, truth_angles: torch.Tensor) -> torch.Tensor:
+    def refinement_angle_error(self, obs: torch.Tensor, truth_angles: torch.Tensor,
+                               angles: torch.Tensor | None = None) -> torch.Tensor:
         """(B,) mean squared difference (rad^2, wrapped to [-pi, pi)) over the 69 hinges between
-        the refined joint angles and the true ones."""
-        angles, _, _, _ = self.refine(**split_observation(obs))
+        the refined joint angles and the true ones. `angles`: as in `refinement_error`."""
+        if angles is None:
+            angles = self.refine(**split_observation(obs))[0]
         d = torch.remainder(angles - truth_angles + np.pi, 2 * np.pi) - np.pi
         return d.square().mean(-1)
 
@@ -542,12 +558,14 @@ class SimPoEPPO(PPO):
         return TruthLabels(self.device) if self.config.refine_aux_coef > 0 else super()._rollout_hooks()
 
     def _loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
-        terms = super()._loss(mb)
         coef = self.config.refine_aux_coef
         if coef <= 0 or self.policy.iterations == 0:
-            return terms
+            return super()._loss(mb)
+        ev = self.policy.evaluate_actions(mb["obs"], mb["actions"])
+        terms = self._ppo_loss(mb, ev)
         # The stored observations are normalised except the refinement's columns (kept raw).
-        error = getattr(self.policy, REFINE_TARGETS[self.config.refine_target][0])(mb["obs"], mb[TRUTH]).mean()
+        error_of = getattr(self.policy, REFINE_TARGETS[self.config.refine_target][0])
+        error = error_of(mb["obs"], mb[TRUTH], ev.extras["refined_angles"]).mean()
         self._refine_errors.append(float(error.detach()))
         return (terms[0] + coef * error, *terms[1:])
 

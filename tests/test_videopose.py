@@ -547,6 +547,15 @@ def test_the_supervised_loss_during_ppo_pairs_each_observation_with_its_truth_an
         with torch.no_grad():
             return float(model.policy.refinement_angle_error(data["obs"], data[TRUTH]).mean())
 
+    # The supervised term reuses the refined angles of PPO's own forward pass: the same loss as
+    # PPO's plus the error computed on its own.
+    from agents import PPO
+    with torch.no_grad():
+        mb = {k: v[:64] for k, v in data.items()}
+        model._refine_errors = []
+        expected = PPO._loss(model, mb)[0] + 1000.0 * model.policy.refinement_angle_error(mb["obs"], mb[TRUTH]).mean()
+        assert float(model._loss(mb)[0]) == pytest.approx(float(expected), rel=1e-5)
+
     before = error()
     model.learn(6 * 128, progress_bar=False)
     assert error() < 0.8 * before

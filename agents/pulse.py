@@ -58,7 +58,7 @@ from .normalizer import RunningNorm
 from .on_policy import OnPolicyAlgorithm, OnPolicyConfig
 from .optim import flush_subnormals_
 from .policies import load_policy, register_policy
-from .rollout import RolloutBuffer, RolloutHooks
+from .rollout import InfoColumn, RolloutBuffer, RolloutHooks
 
 LABELS = "teacher_actions"  # the rollout buffer's field of the teacher's (absolute) actions
 REF_DOF = "next_ref_dof_pos"  # the env's info key, and the buffer's field, of the reference angles
@@ -202,39 +202,31 @@ class TeacherLabels(RolloutHooks):
     def __init__(self, teacher: Policy, residual_scale: float | None, device: torch.device):
         self.teacher, self.residual_scale, self.device = teacher, residual_scale, device
         self.scale = torch.as_tensor(ACTION_SCALE, dtype=torch.float32, device=device)
-        self.next_ref: torch.Tensor | None = None  # the reference angles of the next rollout's first obs
-
-    def _ref(self, info: dict) -> torch.Tensor:
-        if REF_DOF not in info:
-            raise KeyError(f"the student's env reports no info[{REF_DOF!r}], which a residual teacher's labels need: "
-                           "distil on a reference-tracking task (SMPL/Imitation-v0)")
-        return torch.as_tensor(info[REF_DOF], dtype=torch.float32, device=self.device)
+        act_dim = teacher.action_space.shape[0]
+        # a residual teacher's labels need the reference angles stored beside each observation
+        self.ref = None if residual_scale is None else InfoColumn(REF_DOF, act_dim, device, missing=(
+            f"the student's env reports no info[{REF_DOF!r}], which a residual teacher's labels need: "
+            "distil on a reference-tracking task (SMPL/Imitation-v0)"))
 
     def on_reset(self, info: dict) -> None:
-        if self.residual_scale is not None:
-            self.next_ref = self._ref(info)
+        if self.ref is not None:
+            self.ref.on_reset(info)
 
     def on_rollout_start(self, buffer: RolloutBuffer) -> None:
         self.labels = buffer.extra(LABELS, self.teacher.action_space.shape[0])
-        if self.residual_scale is not None:
-            self.ref = buffer.extra(REF_DOF, self.teacher.action_space.shape[0])
-            self.ref[0] = self.next_ref
+        if self.ref is not None:
+            self.ref.on_rollout_start(buffer)
 
     def on_step(self, t: int, info: dict, done: np.ndarray, valid: np.ndarray) -> None:
-        # `info` describes the observation after step t: the next stored one.
-        if self.residual_scale is None:
-            return
-        if t + 1 < len(self.ref):
-            self.ref[t + 1] = self._ref(info)
-        else:
-            self.next_ref = self._ref(info)
+        if self.ref is not None:
+            self.ref.on_step(t, info, done, valid)
 
     @torch.no_grad()
     def on_rollout_end(self, buffer: RolloutBuffer) -> None:
         obs = buffer.obs.reshape(-1, buffer.obs.shape[-1])
         actions = self.teacher.env_action(self.teacher.act(obs), obs)
         if self.residual_scale is not None:
-            ref = self.ref.reshape(-1, self.ref.shape[-1])
+            ref = self.ref.column.reshape(-1, self.ref.dim)
             actions = residual_to_absolute(actions, ref, self.scale, self.residual_scale)
         self.labels.copy_(actions.reshape(self.labels.shape))
 

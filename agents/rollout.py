@@ -176,6 +176,35 @@ class RolloutHooks:
         pass
 
 
+class InfoColumn(RolloutHooks):
+    """Stores `info[key]`, which the env reports with each observation (`dim` numbers per world),
+    beside that observation: the rollout's extra `key` (`carry`: in every minibatch too). The
+    `info` of step t describes the observation after it, the next stored one; the last step's
+    waits for the next rollout's first row. `missing`: the error when the env reports no `key`."""
+
+    def __init__(self, key: str, dim: int, device: torch.device, missing: str, carry: bool = False):
+        self.key, self.dim, self.device, self.missing, self.carry = key, dim, device, missing, carry
+        self.next: torch.Tensor | None = None  # the value for the next rollout's first observation
+
+    def _value(self, info: dict) -> torch.Tensor:
+        if self.key not in info:
+            raise ValueError(self.missing)
+        return torch.as_tensor(info[self.key], dtype=torch.float32, device=self.device)
+
+    def on_reset(self, info: dict) -> None:
+        self.next = self._value(info)
+
+    def on_rollout_start(self, buffer: RolloutBuffer) -> None:
+        self.column = buffer.extra(self.key, self.dim, carry=self.carry)
+        self.column[0] = self.next
+
+    def on_step(self, t: int, info: dict, done: np.ndarray, valid: np.ndarray) -> None:
+        if t + 1 < len(self.column):
+            self.column[t + 1] = self._value(info)
+        else:
+            self.next = self._value(info)
+
+
 class RolloutCollector:
     """Steps `env` with `policy` and fills a `RolloutBuffer`, one rollout per `collect` call.
 

@@ -63,7 +63,7 @@ from .networks import ActionEval, Policy, ValueCritic, _sizes, mlp
 from .normalizer import RunningNorm
 from .policies import register_policy
 from .ppo import PPO, PPOConfig
-from .rollout import RolloutBuffer, RolloutHooks
+from .rollout import InfoColumn, RolloutBuffer, RolloutHooks
 
 OBS = layout_slices({"self": SELF_OBS_LAYOUT, **VIDEO_TASK_LAYOUT})
 OBS_DIM = max(s.stop for s in OBS.values())
@@ -440,35 +440,6 @@ class SimPoEPPOConfig(PPOConfig):
             raise ValueError(f"refine_target must be one of {', '.join(REFINE_TARGETS)}, got {self.refine_target!r}")
 
 
-class TruthLabels(RolloutHooks):
-    """The true joint angles the env reports with each observation, stored beside it (a carried
-    extra of the rollout) for the refinement's supervised loss."""
-
-    def __init__(self, device: torch.device):
-        self.device = device
-        self.next: torch.Tensor | None = None  # the truth of the next rollout's first observation
-
-    def _truth(self, info: dict) -> torch.Tensor:
-        if TRUTH not in info:
-            raise ValueError(f"refine_aux_coef needs ground truth (info[{TRUTH!r}]): train on generated input "
-                             "(motions=), not on estimator files, or set refine_aux_coef=0")
-        return torch.as_tensor(info[TRUTH], dtype=torch.float32, device=self.device)
-
-    def on_reset(self, info: dict) -> None:
-        self.next = self._truth(info)
-
-    def on_rollout_start(self, buffer: RolloutBuffer) -> None:
-        self.truth = buffer.extra(TRUTH, NUM_HINGES, carry=True)
-        self.truth[0] = self.next
-
-    def on_step(self, t: int, info: dict, done: np.ndarray, valid: np.ndarray) -> None:
-        # `info` comes with the observation after step t: the next stored one.
-        if t + 1 < len(self.truth):
-            self.truth[t + 1] = self._truth(info)
-        else:
-            self.next = self._truth(info)
-
-
 class SimPoEPPO(PPO):
     """PPO whose policy is SimPoE's (`KinematicRefinement`, the default), with the refinement
     unit optionally pretrained by supervised regression (`refine_pretrain_samples`) once, before
@@ -555,7 +526,11 @@ class SimPoEPPO(PPO):
 
     # --- the refinement's supervised loss during PPO (refine_aux_coef)
     def _rollout_hooks(self) -> RolloutHooks:
-        return TruthLabels(self.device) if self.config.refine_aux_coef > 0 else super()._rollout_hooks()
+        if self.config.refine_aux_coef <= 0:
+            return super()._rollout_hooks()
+        return InfoColumn(TRUTH, NUM_HINGES, self.device, carry=True, missing=(
+            f"refine_aux_coef needs ground truth (info[{TRUTH!r}]): train on generated input (motions=), "
+            "not on estimator files, or set refine_aux_coef=0"))
 
     def _loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
         coef = self.config.refine_aux_coef

@@ -3,6 +3,8 @@
     python benchmarks/videopose_diagnosis.py knobs                      # which estimator error fells the tracker
     python benchmarks/videopose_diagnosis.py refinement videopose runs/videopose_aux
     python benchmarks/videopose_diagnosis.py step0                      # the recipe's policy before PPO
+    python benchmarks/videopose_diagnosis.py families RUN/evals/*.json  # no fall per motion family
+    python benchmarks/videopose_diagnosis.py endings videopose          # why training episodes end
 
 `knobs`: the generalist tracker (`--tracker`) follows the noisy input of `--sequences` evenly
 spaced corpus:test sequences (the report's, `videopose_report.py`) with every knob of the estimator
@@ -21,12 +23,23 @@ supervised pretraining sets this error; PPO's loss alone moves it (`refine_aux_c
 any PPO update, evaluated on `--motions` (corpus:test, every sequence, as the runs evaluate): with
 the untrained unit (damped Gauss-Newton on the keypoints), and after the supervised pretraining on
 each `refine_target`. What the refinement hands the tracker decides how often it falls.
+
+`families`: from evaluation files a run wrote (`RUN/evals/*.json`, one column each), per motion
+family of the sequences: the no-fall share and the median time of the falls.
+
+`endings`: a checkpoint acts (sampling, as in training) in its own training env (the env kwargs
+of its checkpoint; `--termination-distance` to change that one) for `--steps` steps of
+`--num-envs` worlds; the episodes that end are counted by why: a fall, the distance to the
+estimate, or the sequence's end. What ends the training episodes is what the policy never learns
+to do after.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
+import re
 import sys
 from pathlib import Path
 
@@ -37,6 +50,7 @@ import torch
 import smpl_envs
 from smpl_envs.motion import load_motions
 from smpl_envs.motion.estimator_noise import EstimatorNoise
+from smpl_envs.motion.motion import FPS
 from smpl_envs.motion.video_input import VideoInput, VideoLib
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -132,6 +146,65 @@ def step0(args) -> None:
         agent.close()
 
 
+def _family(name: str) -> str:
+    return re.sub(r"_(train|test)_\d+$", "", name)
+
+
+def families(args) -> None:
+    columns = []
+    for path in args.evals:
+        clips = json.loads(Path(path).read_text())["clips"]
+        by: dict[str, list[dict]] = {}
+        for c in clips:
+            by.setdefault(_family(c["name"]), []).append(c)
+        columns.append(by)
+    names = sorted(set().union(*columns))
+    print("| family | sequences | " + " | ".join(Path(p).stem.lstrip("0") or "0" for p in args.evals) + " |")
+    print("|---|---|" + "---|" * len(args.evals))
+    for name in names + ["all"]:
+        cells, count = [], 0
+        for by in columns:
+            rows = [c for v in by.values() for c in v] if name == "all" else by.get(name, [])
+            count = len(rows)
+            falls = [c["fail_frame"] / FPS for c in rows if c["fell"]]
+            if not rows:
+                cells.append("-")
+                continue
+            when = f", falls at {np.median(falls):.1f} s" if falls else ""
+            cells.append(f"{100 * (1 - len(falls) / len(rows)):.0f} %{when}")
+        print(f"| {name} | {count} | " + " | ".join(cells) + " |")
+
+
+def endings(args) -> None:
+    from agents import load
+    from agents.recipes import find_checkpoint
+
+    path = find_checkpoint(args.checkpoint)
+    model = load(path)
+    kwargs = dict(model.env_kwargs)
+    if args.termination_distance is not None:
+        kwargs["termination_distance"] = None if args.termination_distance <= 0 else args.termination_distance
+    env = gym.make_vec("SMPL/VideoPose-v0", num_envs=args.num_envs, **kwargs)
+    obs, _ = env.reset(seed=args.seed)
+    counts = {"fall": 0, "distance to the estimate": 0, "sequence end": 0}
+    steps, lengths = np.zeros(args.num_envs), []
+    for _ in range(args.steps):
+        obs, _, terminated, truncated, info = env.step(model.predict(obs, deterministic=False)[0])
+        steps += 1
+        for i in np.flatnonzero(terminated | truncated):
+            why = ("sequence end" if truncated[i] and not terminated[i]
+                   else "fall" if info["fallen"][i] else "distance to the estimate")
+            counts[why] += 1
+            lengths.append(steps[i])
+            steps[i] = 0
+    env.close()
+    total = max(sum(counts.values()), 1)
+    print(f"{path}: termination_distance={kwargs.get('termination_distance')}, {total} episodes ended, "
+          f"mean length {np.mean(lengths) / FPS:.2f} s")
+    for why, n in counts.items():
+        print(f"  {why}: {n} ({100 * n / total:.0f} %)")
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -149,9 +222,17 @@ def main(argv=None) -> None:
     z.add_argument("--motions", default="corpus:test")
     z.add_argument("--num-envs", type=int, default=16)
     z.add_argument("--threads", type=int, default=2)
+    f = sub.add_parser("families", help="no fall per motion family, from a run's evaluation files")
+    f.add_argument("evals", nargs="+")
+    e = sub.add_parser("endings", help="why a checkpoint's training episodes end")
+    e.add_argument("checkpoint")
+    e.add_argument("--termination-distance", type=float, default=None, help="m; 0: none (default: the checkpoint's)")
+    e.add_argument("--num-envs", type=int, default=16)
+    e.add_argument("--steps", type=int, default=600)
+    e.add_argument("--seed", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(getattr(args, "threads", 1) if args.what == "step0" else 1)
-    {"knobs": knobs, "refinement": refinement, "step0": step0}[args.what](args)
+    {"knobs": knobs, "refinement": refinement, "step0": step0, "families": families, "endings": endings}[args.what](args)
 
 
 if __name__ == "__main__":

@@ -40,7 +40,7 @@ class VideoProtocol(ClipProtocol):
 
     key = "score"
     train_only_kwargs = ("start", "max_episode_steps", "termination_distance", "beginning_share",
-                         "failure_sampling", "motion_weights")
+                         "failure_sampling", "motion_weights", "noise_scale_range")
 
     def eval_kwargs(self, train_kwargs: dict) -> dict:
         return {k: v for k, v in super().eval_kwargs(train_kwargs).items() if k != "video"}

@@ -10,7 +10,7 @@ import os
 from pathlib import Path
 
 from .motion.estimator_files import load_estimator_output
-from .motion.estimator_noise import EstimatorNoise, degrade_library
+from .motion.estimator_noise import EstimatorNoise, check_scale_range, degrade_library
 from .motion.library import MotionLib
 from .motion.video_input import VideoInput, VideoLib
 
@@ -18,11 +18,13 @@ ESTIMATOR_SUFFIXES = (".npz", ".pkl", ".json")
 
 
 def video_library(motions=None, video=None, *, noise=None, noise_scale: float = 1.0, noise_seed: int = 0,
-                  cache: bool = True, progress: bool = False) -> VideoLib:
+                  noise_scale_range: tuple[float, float] | None = None, cache: bool = True,
+                  progress: bool = False) -> VideoLib:
     """A VideoLib from exactly one of
     - `motions`: clips (a shipped clip name, a corpus name, files, a directory, a list, a
       MotionLib) degraded by the estimator model with `noise` (None, a dict of knobs, or an
-      `EstimatorNoise`) times `noise_scale`, clip i seeded (noise_seed, i); or
+      `EstimatorNoise`) times `noise_scale`, clip i seeded (noise_seed, i) and, with
+      `noise_scale_range` (lo, hi), its noise times a scale of its own drawn in [lo, hi]; or
     - `video`: a VideoLib, a VideoInput, an estimator output file (everything in one file, see
       `load_estimator_output`), a directory of such files, or a list of VideoInputs and files.
     Neither: the shipped walk clip, degraded. A VideoLib or VideoInputs given as `motions` are
@@ -38,22 +40,23 @@ def video_library(motions=None, video=None, *, noise=None, noise_scale: float = 
         if motions is not None:
             raise ValueError("give motions= (clips to degrade with the estimator model) or video= (estimator "
                              "output), not both")
-        if noise is not None or noise_scale != 1.0:
-            raise ValueError("noise and noise_scale shape generated input (motions=); video= is real estimator "
-                             "output, used as it is")
+        if noise is not None or noise_scale != 1.0 or noise_scale_range is not None:
+            raise ValueError("noise, noise_scale and noise_scale_range shape generated input (motions=); video= is "
+                             "real estimator output, used as it is")
         return _video(video)
     noise = EstimatorNoise.make(noise, noise_scale)
+    scale_range = None if noise_scale_range is None else check_scale_range(noise_scale_range)
     motions = "walk" if motions is None else motions
     key = _motions_key(motions)
     if key is not None and cache:
-        return _generated(key, noise, int(noise_seed))
-    return degrade_library(motions, noise, seed=int(noise_seed), progress=progress)
+        return _generated(key, noise, int(noise_seed), scale_range)
+    return degrade_library(motions, noise, seed=int(noise_seed), scale_range=scale_range, progress=progress)
 
 
 @functools.lru_cache(maxsize=8)
-def _generated(key, noise: EstimatorNoise, seed: int) -> VideoLib:
+def _generated(key, noise: EstimatorNoise, seed: int, scale_range: tuple[float, float] | None) -> VideoLib:
     motions = list(key) if isinstance(key, tuple) else key
-    return degrade_library(motions, noise, seed=seed)
+    return degrade_library(motions, noise, seed=seed, scale_range=scale_range)
 
 
 def _motions_key(motions):

@@ -160,6 +160,37 @@ def test_noise_degrades_every_metric_and_grows_with_its_scale():
         assert all(a < b for a, b in zip(values, values[1:])), (key, values)
 
 
+def test_a_noise_scale_range_scales_each_clips_own_errors_and_stays_out_of_the_evaluation():
+    from smpl_envs.motion.estimator_noise import check_scale_range
+
+    lib = load_motions(["walk", "run", "turn"])
+    default = degrade_library(lib, seed=0)
+    np.testing.assert_array_equal(degrade_library(lib, seed=0, scale_range=(1, 1)).pixels, default.pixels)
+    clean = video_metrics.summarize(input_rows(degrade_library(lib, seed=0, scale_range=(0, 0))))
+    assert clean["mpjpe"] < 1e-3 and clean["reprojection"] < 1e-3
+    mixed = degrade_library(lib, seed=0, scale_range=(0.0, 2.0))
+    np.testing.assert_array_equal(mixed.pixels, degrade_library(lib, seed=0, scale_range=(0.0, 2.0)).pixels)
+    # Clip i: the default clip's own draws, every magnitude times its scale from stream (0, i, 1).
+    scales, start = [], 0
+    for i in range(lib.num_motions):
+        s = np.random.default_rng(np.random.SeedSequence([0, i, 1])).uniform(0.0, 2.0)
+        one = degrade(lib.motion(i), EstimatorNoise().scaled(s), seed=np.random.default_rng(np.random.SeedSequence([0, i])))
+        np.testing.assert_allclose(mixed.estimate.motion(i).qpos[:, :3], one.root_pos, atol=1e-6)
+        np.testing.assert_allclose(mixed.pixels[start:start + len(one.keypoints)], one.keypoints, atol=1e-3)
+        start += len(one.keypoints)
+        scales.append(s)
+    assert np.ptp(scales) > 0.1
+    for bad in ((2, 1), (-1, 1), "x", (0, float("nan"))):
+        with pytest.raises(ValueError, match="noise_scale_range"):
+            check_scale_range(bad)
+    # The env takes it; a training run's evaluation measures at noise_scale alone.
+    env = gym.make_vec(ID, num_envs=1, motions="walk", noise_scale_range=(0.0, 0.0))
+    np.testing.assert_allclose(env.unwrapped.video.estimate.body_pos, env.unwrapped.truth.body_pos, atol=1e-6)
+    env.close()
+    from smpl_envs.video_eval import VideoProtocol
+    assert VideoProtocol().eval_kwargs({"noise_scale_range": [0, 1], "noise_scale": 1.0}) == {"noise_scale": 1.0}
+
+
 # ---------------------------------------------------------------------------------------- metrics
 def test_metrics_on_known_answers():
     t = np.arange(10)

@@ -10,6 +10,9 @@ Input (`smpl_envs.motion.video_input.VideoLib`), from one of two sources:
   keypoints through a random plausible camera with noise, low confidences and occlusions), with
   knobs `noise` (a dict over `EstimatorNoise`'s defaults), `noise_scale` and `noise_seed`. The
   clean clip is the ground truth of the reward and the metrics. Default: the walk clip.
+  `noise_scale_range` (lo, hi), for training only: each clip's noise times a scale of its own,
+  drawn uniformly in [lo, hi] (seeded), so a policy learns on easy and hard input at once; the
+  evaluation leaves it out and measures at `noise_scale`.
 - `video=`: real estimator output (`smpl_envs.motion.estimator_files`: SMPL parameters, COCO-17
   or BODY-25 keypoints, intrinsics) or VideoInputs / a VideoLib. No ground truth: the reward's
   pose, velocity and joint terms measure against the estimate, and the evaluation reports the
@@ -113,7 +116,7 @@ class VideoPoseVecEnv(HumanoidVecEnv):
     """`gym.make_vec("SMPL/VideoPose-v0", num_envs=N, **kwargs)` (module docstring).
 
     kwargs: motions (clips to degrade; default "walk") or video (estimator output), noise,
-    noise_scale (1.0), noise_seed (0), reward_scales (dict over pose, velocity, joint, keypoint),
+    noise_scale (1.0), noise_seed (0), noise_scale_range (None; training only), reward_scales (dict over pose, velocity, joint, keypoint),
     termination_distance (0.5 m; None disables), residual_scale (0.25), meta_pd (False),
     meta_pd_range (2.0), residual_force (False), residual_force_scale (300 N),
     residual_torque_scale (100 N m), ghost_offset ((0, 0, 0) m: where renders draw the input and
@@ -130,7 +133,8 @@ class VideoPoseVecEnv(HumanoidVecEnv):
     backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, motions=None, video=None, noise: dict | None = None,
-                 noise_scale: float = 1.0, noise_seed: int = 0, reward_scales: dict | None = None,
+                 noise_scale: float = 1.0, noise_seed: int = 0, noise_scale_range: tuple[float, float] | None = None,
+                 reward_scales: dict | None = None,
                  termination_distance: float | None = TERMINATION_DISTANCE, residual_scale: float = RESIDUAL_SCALE,
                  meta_pd: bool = False, meta_pd_range: float = META_PD_RANGE, residual_force: bool = False,
                  residual_force_scale: float = RESIDUAL_FORCE_SCALE,
@@ -152,7 +156,8 @@ class VideoPoseVecEnv(HumanoidVecEnv):
         self.residual_torque_scale = check_number("residual_torque_scale", residual_torque_scale)
         self.ghost_offset = np.asarray(ghost_offset, float).reshape(3)
         self.video: VideoLib = video_library(motions, video, noise=noise, noise_scale=noise_scale,
-                                             noise_seed=noise_seed, cache=kwargs.get("cache", True))
+                                             noise_seed=noise_seed, noise_scale_range=noise_scale_range,
+                                             cache=kwargs.get("cache", True))
         super().__init__(num_envs, motions=self.video.estimate, **kwargs)
         b = self.backend
         self.truth = self.video.truth

@@ -187,18 +187,35 @@ def degrade(motion: Motion, noise: EstimatorNoise | dict | None = None, *, seed:
 
 
 def degrade_library(motions, noise: EstimatorNoise | dict | None = None, *, seed: int = 0,
-                    progress: bool = False) -> VideoLib:
+                    scale_range: tuple[float, float] | None = None, progress: bool = False) -> VideoLib:
     """A VideoLib of every clip of `motions` (anything `load_motions` takes) degraded by the
-    estimator model, clip i with the random stream (seed, i), the clips themselves as truth."""
+    estimator model, clip i with the random stream (seed, i), the clips themselves as truth.
+    `scale_range` (lo, hi): clip i's noise is `noise` times a scale drawn uniformly in [lo, hi]
+    from a stream of its own, (seed, i, 1), so its errors are the unscaled clip's, scaled."""
     from ..progress import pbar
 
     lib = motions if isinstance(motions, MotionLib) else load_motions(motions, progress=progress)
     noise = EstimatorNoise.make(noise)
+    lo, hi = check_scale_range(scale_range) if scale_range is not None else (1.0, 1.0)
     inputs = []
     for i in pbar(range(lib.num_motions), desc="estimator model", unit="clip", disable=not progress):
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), i]))
-        inputs.append(degrade(lib.motion(i), noise, seed=rng, keep_truth=False))  # the library is the truth
+        clip_noise = noise
+        if scale_range is not None:
+            clip_noise = noise.scaled(np.random.default_rng(np.random.SeedSequence([int(seed), i, 1])).uniform(lo, hi))
+        inputs.append(degrade(lib.motion(i), clip_noise, seed=rng, keep_truth=False))  # the library is the truth
     return VideoLib(inputs, truth=lib)
+
+
+def check_scale_range(scale_range) -> tuple[float, float]:
+    """(lo, hi) of a per-clip noise scale range, 0 <= lo <= hi; a ValueError says what is wrong."""
+    try:
+        lo, hi = (float(v) for v in scale_range)
+    except (TypeError, ValueError):
+        raise ValueError(f"noise_scale_range must be a pair (lo, hi) of numbers, got {scale_range!r}") from None
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi):
+        raise ValueError(f"noise_scale_range must satisfy 0 <= lo <= hi, got {scale_range!r}")
+    return lo, hi
 
 
 def estimate_body_pos(video: VideoInput) -> np.ndarray:
@@ -206,4 +223,4 @@ def estimate_body_pos(video: VideoInput) -> np.ndarray:
     return forward_kinematics(video.root_pos, video.local_quat, MEAN_SKELETON.offsets)[0]
 
 
-__all__ = ["EstimatorNoise", "degrade", "degrade_library", "slow_noise", "estimate_body_pos"]
+__all__ = ["EstimatorNoise", "check_scale_range", "degrade", "degrade_library", "slow_noise", "estimate_body_pos"]

@@ -5,6 +5,7 @@
     python benchmarks/videopose_diagnosis.py step0                      # the recipe's policy before PPO
     python benchmarks/videopose_diagnosis.py families RUN/evals/*.json  # no fall per motion family
     python benchmarks/videopose_diagnosis.py endings videopose          # why training episodes end
+    python benchmarks/videopose_diagnosis.py noise videopose tracker    # one family's no fall by noise scale
 
 `knobs`: the generalist tracker (`--tracker`) follows the noisy input of `--sequences` evenly
 spaced corpus:test sequences (the report's, `videopose_report.py`) with every knob of the estimator
@@ -32,6 +33,12 @@ of its checkpoint; `--termination-distance` to change that one) for `--steps` st
 `--num-envs` worlds; the episodes that end are counted by why: a fall, the distance to the
 estimate, or the sequence's end. What ends the training episodes is what the policy never learns
 to do after.
+
+`noise`: each policy (SimPoE checkpoints, runs or shipped names; "tracker" is the generalist
+tracker reading the Imitation-v0 part of the observation) follows the sequences of `--motions`
+(default: the 40 test walks) generated at each of `--scales`: the no-fall share and MPJPE per
+scale. A policy that walks on clean input and not on noisy input has to learn robustness; one
+that no longer walks on clean input has forgotten how.
 """
 
 from __future__ import annotations
@@ -205,6 +212,24 @@ def endings(args) -> None:
         print(f"  {why}: {n} ({100 * n / total:.0f} %)")
 
 
+def noise(args) -> None:
+    from agents import load
+    from agents.recipes import find_checkpoint
+
+    print(f"**{args.motions}: no fall (MPJPE, mm) by noise scale**\n")
+    print("| policy | " + " | ".join(f"noise {s:g}" for s in args.scales) + " |")
+    print("|---|" + "---|" * len(args.scales))
+    for name in args.policies:
+        agent = load(find_checkpoint(name))
+        policy = TrackerOnVideo(agent) if agent.env_id != "SMPL/VideoPose-v0" else agent
+        cells = []
+        for scale in args.scales:
+            s = smpl_envs.evaluate(policy, "SMPL/VideoPose-v0", motions=args.motions, num_envs=args.num_envs,
+                                   progress=False, env_kwargs={"noise_scale": scale}).summary
+            cells.append(f"{100 * s['no_fall']:.0f} % ({s['mpjpe']:.0f})")
+        print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -230,9 +255,15 @@ def main(argv=None) -> None:
     e.add_argument("--num-envs", type=int, default=16)
     e.add_argument("--steps", type=int, default=600)
     e.add_argument("--seed", type=int, default=1)
+    n = sub.add_parser("noise", help="policies' no fall on one family by noise scale")
+    n.add_argument("policies", nargs="+")
+    n.add_argument("--motions", default="corpus:test/walk")
+    n.add_argument("--scales", type=float, nargs="+", default=[0.0, 0.5, 1.0])
+    n.add_argument("--num-envs", type=int, default=8)
     args = parser.parse_args(argv)
     torch.set_num_threads(getattr(args, "threads", 1) if args.what == "step0" else 1)
-    {"knobs": knobs, "refinement": refinement, "step0": step0, "families": families, "endings": endings}[args.what](args)
+    {"knobs": knobs, "refinement": refinement, "step0": step0, "families": families, "endings": endings,
+     "noise": noise}[args.what](args)
 
 
 if __name__ == "__main__":

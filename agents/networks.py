@@ -237,10 +237,15 @@ class ValueCritic:
         if self.value_norm is not None:
             self.value_norm.update(returns)
 
+    def scored_distribution(self, nobs: torch.Tensor) -> tuple[torch.distributions.Distribution, dict | None]:
+        """The action distribution `evaluate_actions` scores, and what the policy computed on
+        the way that an agent's loss may reuse (`ActionEval.extras`; None: nothing)."""
+        return self.action_distribution(nobs), None
+
     def evaluate_actions(self, nobs: torch.Tensor, actions: torch.Tensor) -> ActionEval:
-        dist = self.action_distribution(nobs)
+        dist, extras = self.scored_distribution(nobs)
         return ActionEval(dist.log_prob(actions).sum(-1), dist.entropy().sum(-1), dist.mean,
-                          self.critic_output(nobs))
+                          self.critic_output(nobs), extras)
 
 
 class ActorCritic(ValueCritic, Policy):

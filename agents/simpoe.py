@@ -59,7 +59,7 @@ from smpl_envs.features import SELF_OBS_LAYOUT, layout_slices
 from smpl_envs.humanoid.skeleton import ACTION_SCALE, MEAN_SKELETON, NUM_BODIES, NUM_HINGES, PARENTS
 from smpl_envs.video_features import VIDEO_TASK_LAYOUT
 
-from .networks import ActionEval, Policy, ValueCritic, _sizes, mlp
+from .networks import Policy, ValueCritic, _sizes, mlp
 from .normalizer import RunningNorm
 from .policies import register_policy
 from .ppo import PPO, PPOConfig
@@ -290,26 +290,20 @@ class KinematicRefinement(ValueCritic, Policy):
         return angles, parts["angles"], grad, before, after
 
     def distribution(self, nobs: torch.Tensor) -> Normal:
-        return self._distribution(nobs)[0]
+        return self.scored_distribution(nobs)[0]
 
-    def _distribution(self, nobs: torch.Tensor) -> tuple[Normal, torch.Tensor]:
-        """(the action distribution, the refined angles (B, 69) it is centred on)."""
+    def scored_distribution(self, nobs: torch.Tensor) -> tuple[Normal, dict[str, torch.Tensor]]:
+        """The action distribution, with the refined angles (B, 69) it is centred on as
+        `extras["refined_angles"]`: the refinement's supervised loss reuses this forward pass."""
         angles, est, grad, _, _ = self.refined(nobs)
         feat = torch.cat([self.features(nobs), angles, GRAD_FEATURE_SCALE * grad.reshape(len(nobs), -1)], -1)
         mu = self.actor(feat)
         offset = (angles - est) / self._residual_unit
         mu = torch.cat([mu[:, :NUM_HINGES] + offset, mu[:, NUM_HINGES:]], -1)
-        return Normal(mu, self.log_std.exp().expand_as(mu), validate_args=False), angles
+        return Normal(mu, self.log_std.exp().expand_as(mu), validate_args=False), {"refined_angles": angles}
 
     def action_distribution(self, nobs: torch.Tensor) -> Normal:
         return self.distribution(nobs)
-
-    def evaluate_actions(self, nobs: torch.Tensor, actions: torch.Tensor) -> ActionEval:
-        """ValueCritic's scoring, with the refined angles in `extras["refined_angles"]` so that
-        the refinement's supervised loss reuses this forward pass."""
-        dist, angles = self._distribution(nobs)
-        return ActionEval(dist.log_prob(actions).sum(-1), dist.entropy().sum(-1), dist.mean,
-                          self.critic_output(nobs), {"refined_angles": angles})
 
     def forward(self, nobs: torch.Tensor):
         return self.distribution(nobs), self.value(nobs)

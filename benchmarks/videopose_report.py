@@ -35,7 +35,7 @@ import numpy as np
 
 import smpl_envs
 from smpl_envs.motion import load_motions
-from smpl_envs.motion.estimator_noise import EstimatorNoise, degrade
+from smpl_envs.motion.estimator_noise import EstimatorNoise, degrade_clip
 from smpl_envs.video_eval import input_result
 from smpl_envs.motion.video_input import VideoLib
 
@@ -52,9 +52,8 @@ def video_input(split: str, indices: np.ndarray, scale: float, seed: int = 0) ->
 
 
 def degraded(lib, indices: np.ndarray, noise: EstimatorNoise, seed: int = 0) -> list:
-    """VideoInputs of clips `indices` of `lib` degraded by `noise`, clip i with the stream (seed, i)."""
-    return [degrade(lib.motion(int(i)), noise, seed=np.random.default_rng(np.random.SeedSequence([seed, int(i)])))
-            for i in indices]
+    """VideoInputs of clips `indices` of `lib` degraded by `noise`, each as in the whole library."""
+    return [degrade_clip(lib, i, noise, seed=seed) for i in indices]
 
 
 def evenly_spaced(n_total: int, n: int | None) -> np.ndarray:

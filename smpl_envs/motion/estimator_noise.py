@@ -188,23 +188,28 @@ def degrade(motion: Motion, noise: EstimatorNoise | dict | None = None, *, seed:
 
 def degrade_library(motions, noise: EstimatorNoise | dict | None = None, *, seed: int = 0,
                     scale_range: tuple[float, float] | None = None, progress: bool = False) -> VideoLib:
-    """A VideoLib of every clip of `motions` (anything `load_motions` takes) degraded by the
-    estimator model, clip i with the random stream (seed, i), the clips themselves as truth.
-    `scale_range` (lo, hi): clip i's noise is `noise` times a scale drawn uniformly in [lo, hi]
-    from a stream of its own, (seed, i, 1), so its errors are the unscaled clip's, scaled."""
+    """A VideoLib of every clip of `motions` (anything `load_motions` takes), each degraded by
+    `degrade_clip`, the clips themselves as truth."""
     from ..progress import pbar
 
     lib = motions if isinstance(motions, MotionLib) else load_motions(motions, progress=progress)
     noise = EstimatorNoise.make(noise)
-    lo, hi = check_scale_range(scale_range) if scale_range is not None else (1.0, 1.0)
-    inputs = []
-    for i in pbar(range(lib.num_motions), desc="estimator model", unit="clip", disable=not progress):
-        rng = np.random.default_rng(np.random.SeedSequence([int(seed), i]))
-        clip_noise = noise
-        if scale_range is not None:
-            clip_noise = noise.scaled(np.random.default_rng(np.random.SeedSequence([int(seed), i, 1])).uniform(lo, hi))
-        inputs.append(degrade(lib.motion(i), clip_noise, seed=rng, keep_truth=False))  # the library is the truth
+    inputs = [degrade_clip(lib, i, noise, seed=seed, scale_range=scale_range, keep_truth=False)  # lib is the truth
+              for i in pbar(range(lib.num_motions), desc="estimator model", unit="clip", disable=not progress)]
     return VideoLib(inputs, truth=lib)
+
+
+def degrade_clip(lib: MotionLib, i: int, noise: EstimatorNoise, *, seed: int = 0,
+                 scale_range: tuple[float, float] | None = None, keep_truth: bool = True) -> VideoInput:
+    """Clip `i` of `lib` degraded by `noise` with the random stream (seed, i), so that any subset
+    of a library gets the input the whole one would. `scale_range` (lo, hi): the noise times a
+    scale drawn uniformly in [lo, hi] from a stream of its own, (seed, i, 1), so the errors are
+    the unscaled clip's, scaled."""
+    if scale_range is not None:
+        lo, hi = check_scale_range(scale_range)
+        noise = noise.scaled(np.random.default_rng(np.random.SeedSequence([int(seed), int(i), 1])).uniform(lo, hi))
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), int(i)]))
+    return degrade(lib.motion(int(i)), noise, seed=rng, keep_truth=keep_truth)
 
 
 def check_scale_range(scale_range) -> tuple[float, float]:
@@ -223,4 +228,4 @@ def estimate_body_pos(video: VideoInput) -> np.ndarray:
     return forward_kinematics(video.root_pos, video.local_quat, MEAN_SKELETON.offsets)[0]
 
 
-__all__ = ["EstimatorNoise", "check_scale_range", "degrade", "degrade_library", "slow_noise", "estimate_body_pos"]
+__all__ = ["EstimatorNoise", "check_scale_range", "degrade", "degrade_clip", "degrade_library", "slow_noise", "estimate_body_pos"]

@@ -6,10 +6,11 @@ the PULSE issue, and draws each pair's curves side by side against minutes of tr
     python benchmarks/latent_tasks_report.py \
         --pair speed runs/speed_pulse runs/speed_ppo_60 \
         --pair reach runs/reach_pulse runs/reach_ppo_60 ... \
-        [--out docs/results] [--num-envs 16]
+        [--out docs/results] [--num-envs N]
 
-Writes OUT/latent_tasks.json (every evaluation's summary), OUT/<task>_latent_vs_scratch.png, and
-prints the table. A task name picks its targets (TARGETS); the pair is (latent run, scratch run).
+Writes OUT/latent_tasks.json (every evaluation's summary; the tasks it already holds and this call
+does not evaluate are kept, so pairs can be run and reported one at a time),
+OUT/<task>_latent_vs_scratch.png, and prints the table of every task in the file. A task name picks its targets (TARGETS); the pair is (latent run, scratch run).
 """
 
 from __future__ import annotations
@@ -34,13 +35,16 @@ def met(value, comparison: str, target: float) -> bool:
     return value is not None and value == value and COMPARE[comparison](value, target)
 
 
-def evaluate(run: str, num_envs: int) -> dict:
-    """The summary of the run's best checkpoint under its task's protocol, with its run's settings."""
+def evaluate(run: str, num_envs: int | None) -> dict:
+    """The summary of the run's best checkpoint under its task's protocol, with its run's settings
+    (its evaluation's number of worlds too, unless `num_envs` is given: an episode task's seeded
+    episodes are drawn per world, so another count draws other episodes)."""
     from agents.run import _load_target, evaluate_agent
 
     agent, ckpt, _, config = _load_target(run, "best", "cpu")
     ev = (config or {}).get("eval", {})
-    result = evaluate_agent(agent, ev.get("motions"), num_envs, progress=True, **dict(ev.get("options") or {}))
+    worlds = num_envs or ev.get("num_envs") or 16
+    result = evaluate_agent(agent, ev.get("motions"), worlds, progress=True, **dict(ev.get("options") or {}))
     return {"checkpoint": str(ckpt), "timesteps": agent.num_timesteps,
             **{k: float(v) for k, v in result.summary.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}}
 
@@ -67,7 +71,8 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--pair", nargs=3, action="append", required=True, metavar=("TASK", "LATENT_RUN", "SCRATCH_RUN"))
     parser.add_argument("--out", type=Path, default=Path("."))
-    parser.add_argument("--num-envs", type=int, default=16)
+    parser.add_argument("--num-envs", type=int, default=None,
+                        help="worlds per evaluation (default: each run's eval.num_envs, as in training)")
     args = parser.parse_args(argv)
     for task, _, _ in args.pair:
         if task not in TARGETS:
@@ -77,12 +82,17 @@ def main(argv=None) -> None:
     results = {}
     for task, latent, scratch in args.pair:
         results[task] = {"latent": evaluate(latent, args.num_envs), "scratch": evaluate(scratch, args.num_envs)}
+        # the targets' metrics and the training episodes (an imitation task logs dozens of columns)
+        metrics = [key for key, _, _ in TARGETS[task]] + ["rollout/ep_len_mean", "rollout/ep_rew_mean"]
         png = plot_runs([latent, scratch], args.out / f"{task}_latent_vs_scratch.png",
-                        labels=["latent (PULSE)", "scratch (PPO)"], x="minutes")
+                        labels=["latent (PULSE)", "scratch (PPO)"], x="minutes", metrics=metrics)
         print(png)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "latent_tasks.json").write_text(json.dumps(results, indent=2) + "\n")
-    print(table(results))
+    path = args.out / "latent_tasks.json"
+    kept = json.loads(path.read_text()) if path.exists() else {}
+    merged = {task: results.get(task, kept.get(task)) for task in TARGETS if task in results or task in kept}
+    path.write_text(json.dumps(merged, indent=2) + "\n")
+    print(table(merged))
 
 
 if __name__ == "__main__":

@@ -10,7 +10,8 @@ the PULSE issue, and draws each pair's curves side by side against minutes of tr
 
 Writes OUT/latent_tasks.json (every evaluation's summary; the tasks it already holds and this call
 does not evaluate are kept, so pairs can be run and reported one at a time),
-OUT/<task>_latent_vs_scratch.png, and prints the table of every task in the file. A task name picks its targets (TARGETS); the pair is (latent run, scratch run).
+OUT/<task>_latent_vs_scratch.png, and prints the table of every task in the file. A task name
+picks its targets (TARGETS); the pair is (latent run, scratch run).
 """
 
 from __future__ import annotations

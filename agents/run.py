@@ -742,6 +742,18 @@ def _write_eval(result, json_path: Path) -> None:
     print(json_path)
 
 
+def eval_settings(config: dict | None, motions=None, num_envs: int | None = None,
+                  options: dict | None = None) -> tuple[object, int, dict]:
+    """(motions, num_envs, protocol options) of an evaluation: the ones asked for, else the run
+    config's eval settings (`config`: a run's config.yaml; None for a bare checkpoint). The world
+    count matters beyond speed: an episode task's seeded episodes are drawn per world."""
+    ev = (config or {}).get("eval", {})
+    run_options = dict(ev.get("options") or {})
+    if "threshold" in ev:  # run configs from before eval.options
+        run_options["threshold"] = ev["threshold"]
+    return motions or ev.get("motions"), num_envs or ev.get("num_envs") or 8, {**run_options, **(options or {})}
+
+
 def evaluate_checkpoint(target: str | Path, *, which: str = "best", motions=None, num_envs: int | None = None,
                         options: dict | None = None, out: Path | None = None, device: str = "auto",
                         progress: bool = True) -> int:
@@ -753,19 +765,13 @@ def evaluate_checkpoint(target: str | Path, *, which: str = "best", motions=None
     if num_envs is not None and num_envs < 1:
         raise RecipeError(f"--num-envs must be >= 1, got {num_envs}")
     agent, ckpt, run, config = _load_target(target, which, device)
-    ev = (config or {}).get("eval", {})
-    # The run's evaluation options, then the ones asked for.
-    run_options = dict(ev.get("options") or {})
-    if "threshold" in ev:  # run configs from before eval.options
-        run_options["threshold"] = ev["threshold"]
-    options = {**run_options, **(options or {})}
+    motions, num_envs, options = eval_settings(config, motions, num_envs, options)
     given_out = out is not None
     out = out or (run / "eval.json" if run is not None and Path(target).is_dir() else None)
     if out is not None:  # the JSON and the table beside it, checked before the evaluation runs
         for path in (out, out.with_suffix(".txt")):
             check_writable(path, _output_option(given_out))
-    result = evaluate_agent(agent, motions or ev.get("motions"), num_envs or ev.get("num_envs") or 8,
-                            progress=progress, **options)
+    result = evaluate_agent(agent, motions, num_envs, progress=progress, **options)
     print(f"checkpoint: {ckpt} ({agent.num_timesteps:,} timesteps)")
     if out is None:
         print(result.table())

@@ -37,15 +37,14 @@ def met(value, comparison: str, target: float) -> bool:
 
 
 def evaluate(run: str, num_envs: int | None) -> dict:
-    """The summary of the run's best checkpoint under its task's protocol, with its run's settings
-    (its evaluation's number of worlds too, unless `num_envs` is given: an episode task's seeded
-    episodes are drawn per world, so another count draws other episodes)."""
-    from agents.run import _load_target, evaluate_agent
+    """The summary of the run's best checkpoint under its task's protocol, with its run's
+    evaluation settings (`agents.run.eval_settings`; its number of worlds too, unless `num_envs`
+    is given), as `smpl-envs eval RUN` does."""
+    from agents.run import _load_target, eval_settings, evaluate_agent
 
     agent, ckpt, _, config = _load_target(run, "best", "cpu")
-    ev = (config or {}).get("eval", {})
-    worlds = num_envs or ev.get("num_envs") or 16
-    result = evaluate_agent(agent, ev.get("motions"), worlds, progress=True, **dict(ev.get("options") or {}))
+    motions, worlds, options = eval_settings(config, num_envs=num_envs)
+    result = evaluate_agent(agent, motions, worlds, progress=True, **options)
     return {"checkpoint": str(ckpt), "timesteps": agent.num_timesteps,
             **{k: float(v) for k, v in result.summary.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}}
 

@@ -62,6 +62,26 @@ def test_pushing_onto_hands_and_knees_the_knees_slide_half_way(monkeypatch):
     np.testing.assert_allclose(knees - knees0, -gu._KNEE_SLIDE * shoulders0, atol=0.01)
 
 
+@pytest.mark.parametrize("roll", ["L", "R"])
+def test_rolling_from_the_back_the_top_foot_pushes_from_a_floor_point_while_the_pelvis_turns(roll):
+    raw = getup("back", roll=roll, tempo=2.0, lie=0.3)
+    pos, quat = forward_kinematics(raw.root_pos, raw.local_quat, MEAN_SKELETON.offsets)
+    a, b = phases("back", roll=roll, tempo=2.0, lie=0.3)["roll"]
+    share = lambda u: round((a + u * (b - a)) * raw.fps)  # noqa: E731
+    pushing = slice(share(gu._ROLL["plant"][1]), share(gu._ROLL["push"]) + 1)
+    top = BODY_NAMES.index(f"{'R' if roll == 'R' else 'L'}_Ankle")
+    ankle = pos[pushing, top]
+    # the top leg is the one on the roll's side: its ankle stays on the floor, within a few cm of
+    # its point (the body's pinning averages over all its contacts) ...
+    assert np.ptp(ankle[:, :2], axis=0).max() < 0.05 and ankle[:, 2].max() < 0.12
+    # ... while the pelvis turns from face up towards face down (its forward axis' height)
+    facing = quat_apply(quat[pushing, 0], np.array([1.0, 0.0, 0.0]))[:, 2]
+    assert facing[0] > 0.9 and facing[-1] < facing[0] - 0.5
+    # and the roll ends face down, the arm underneath brought down from overhead for the push
+    end = quat_apply(quat[share(1.0), 0], np.array([1.0, 0.0, 0.0]))[2]
+    assert end < -0.9
+
+
 def test_a_getup_is_a_function_of_its_parameters():
     a, b = getup("back", tempo=0.9), getup("back", tempo=0.9)
     assert np.array_equal(a.root_pos, b.root_pos) and np.array_equal(a.local_quat, b.local_quat)

@@ -448,9 +448,10 @@ FAMILIES: dict[str, Family] = {f.name: f for f in (
     # Appended last: a family's index seeds its clips, so the others' stay as they were.
     Family("getup", "recovery", getup, 60, 10, {"tempo": GETUP_TEMPO_BAND},
            "from lying on the front or back to standing, by hands and knees, a bear stance and a crouch",
-           default=False, version=3),  # 2: the knees slide on the push; 3: the bear-stance rise
+           default=False, version=4),  # 2: the knees slide on the push; 3: the bear-stance rise; 4: the push-off roll
     Family("getup_quick", "recovery", getup_quick, 60, 10, {"tempo": GETUP_QUICK_TEMPO_BAND},
-           "the same get-ups at about twice the pace, after at most 0.5 s lying still", default=False),
+           "the same get-ups at about twice the pace, after at most 0.5 s lying still", default=False,
+           version=2),  # 2: the push-off roll
 )}
 GROUPS = tuple(dict.fromkeys(f.group for f in FAMILIES.values()))
 

@@ -43,12 +43,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..humanoid.kinematics import forward_kinematics, lowest_point
-from ..rotations import quat_apply, quat_from_euler_xyz, quat_inv, quat_mul, yaw_quat
+from ..rotations import (quat_apply, quat_from_euler_xyz, quat_from_matrix, quat_inv, quat_mul, quat_to_matrix,
+                         yaw_quat)
 from .motion import FPS, RawMotion
 from .plausibility import centre_of_mass, support_points_world
 from .procedural import (
-    B, BALL_HEIGHT, DEG, FOOT_CENTRE, check_number, OFFSETS, SIDES, SKELETON, _arm, _axis_quat, _keys,
-    _max_pelvis_height, _minjerk, _normalize, _rot, _solve_arm, _solve_leg, _Spec, _standing_legs,
+    B, BALL_HEIGHT, DEG, FOOT_CENTRE, MIN_KNEE, check_number, OFFSETS, SIDES, SKELETON, _arm, _axis_quat, _frame,
+    _keys, _knee_terms, _max_pelvis_height, _minjerk, _normalize, _rot, _solve_arm, _solve_leg, _Spec, _standing_legs,
 )
 
 SOURCE = "smpl_envs.motion.getup"
@@ -78,6 +79,7 @@ _FLOOR_BODIES = np.array([i for i in range(24) if i not in {B[f"{s}_{p}"] for s 
 # cannot: PD on the reference with no residual (benchmarks/getup_follow.py) was 0.18-0.28 m off on
 # hands and knees with no sliding and 0.03-0.07 m with half (docs/corpus.md; 0.3 and 0.7 did worse).
 _KNEE_SLIDE = 0.5
+_ANKLE_HEIGHT = 0.08  # m: the ankle joint above the floor, a foot flat on it
 _HAND_REST = 0.003  # m: how far above the floor the hand's lowest point is aimed (inside the contact band)
 _PHASES = ("lie", "roll", "hands", "push", "kneel", "bear", "foot_1", "foot_2", "crouch", "lift", "up", "stand",
            "still", "end")
@@ -102,6 +104,34 @@ _FEET = dict(
     heel_land=28 * DEG,  # ... as a foot lands (then flattened in the crouch)
 )
 _OVER_FEET = 0.92  # share of the crouch by which the centre of mass is over the feet
+# The roll from the back onto the front, each time a share of the roll phase. The arm underneath
+# sweeps overhead along the floor and its hand is put down beyond the head; the top knee crosses
+# over to the floor and the top hand is put down ahead of the chest, so that lying on the side the
+# body rests on a base (hand overhead, side, knee, hand ahead) instead of a line of contacts.
+_ROLL = dict(
+    duration=2.0,          # s at tempo 1
+    turn=0.2,              # the pelvis starts to turn about its long axis
+    overhead=172 * DEG,    # abduction of the arm underneath, swept overhead by
+    sweep=0.35,            # ... here,
+    overhead_lift=15 * DEG,  # and lifted off the floor; brought down from here to the push
+    down=0.8,
+    bottom_down=None,      # its hand on the floor from here,
+    bottom_reach=0.45,     # this far beyond the shoulder along the body (m),
+    bottom_face=0.0,       # and this far towards where the chest faces when on the side (m)
+    side=0.6,              # the share at which the body is on its side (floor points are set there)
+    top_flex=30 * DEG,     # the top arm reaches forward,
+    top_down=None,         # its hand put down between these shares (None: not put down),
+    top_ahead=0.25,        # this far ahead of the chest (m, where it faces on the side),
+    top_along=0.0,         # and this far towards the head
+    plant=(0.05, 0.3),    # the top foot is set down near the buttock between these shares,
+    push=0.6,              # ... pushes (stays on its floor point as the pelvis turns) until here,
+    release=0.85,          # and the leg is back in its crossed posture by here
+    foot_along=0.42,       # m: the planted ball of the foot, this far from the hip towards the feet,
+    foot_out=0.06,         # and this far out to the top side
+    foot_flex=-10 * DEG,   # the ankle's hinge while the foot is down
+    cross=0.5,             # the top leg crossed over by here, held until the roll ends
+    cross_flex=50 * DEG, cross_knee=70 * DEG, cross_adduct=8 * DEG,
+)
 _DURATIONS = (("hands", 0.7), ("push", 1.3), ("bear", 0.9), ("foot_1", 0.8), ("foot_2", 0.8), ("crouch", 1.0),
               ("lift", 0.9), ("up", 1.2), ("stand", 0.6))  # s at tempo 1 (lie, kneel and still: parameters)
 
@@ -149,7 +179,7 @@ class _Getup:
     def __init__(self, start, side, roll, tempo, hand_width, hand_ahead, lie, kneel):
         self.side, self.back = side, ("R" if side == "L" else "L")
         self.hand_width, self.hand_ahead = hand_width, hand_ahead
-        durations = [("lie", lie), ("roll", 1.4 if start == "back" else 0.0), *_DURATIONS[:2], ("kneel", kneel),
+        durations = [("lie", lie), ("roll", _ROLL["duration"] if start == "back" else 0.0), *_DURATIONS[:2], ("kneel", kneel),
                      *_DURATIONS[2:], ("still", 0.5)]
         self.keys, t = {}, 0.0
         for phase, d in durations:
@@ -158,6 +188,10 @@ class _Getup:
         self.keys["end"] = t
         self.t = np.arange(int(round(t * FPS)) + 1) / FPS
         self.start, self.roll_sign = start, SIDES[roll]
+        # Rolling from the back the body lies on the shoulder underneath (its upper arm is
+        # overhead): that counts in the body's height and levelling, as the trunk and legs do.
+        self.floor_bodies = _FLOOR_BODIES if start == "front" else np.sort(
+            np.append(_FLOOR_BODIES, B[f"{self._roll_sides()[0]}_Shoulder"]))
 
     def curve(self, keys) -> np.ndarray:
         """Minimum-jerk curve through (phase, value) keys, each reached at that phase's start;
@@ -178,7 +212,7 @@ class _Getup:
         # hands are down, so that they reach the floor with the hips over the feet.
         pitch = c([(k, v * DEG) for k, v in _PELVIS_PITCH])
         # From the back the body rolls about its long axis onto the front: psi 180 -> 0 deg.
-        psi = (c([("lie", np.pi), ("roll", np.pi), ("hands", 0.0)]) * self.roll_sign
+        psi = (c([("lie", np.pi), (("roll", _ROLL["turn"]), np.pi), ("hands", 0.0)]) * self.roll_sign
                if self.start == "back" else np.zeros(n))
         angles = np.zeros((n, 24, 3))
         for s, sign in SIDES.items():
@@ -191,14 +225,17 @@ class _Getup:
             if self.start == "back" and sign == self.roll_sign:
                 # the leg on top crosses over, knee to the floor: the body rolls over it instead
                 # of balancing on its side
-                cross = self.curve([("roll", 0.0), (("roll", 0.5), 1.0), ("hands", 0.0)])
-                flex = flex + cross * 50 * DEG
-                knee_flex = knee_flex + cross * 70 * DEG
+                cross = self.curve([("roll", 0.0), (("roll", _ROLL["cross"]), 1.0), (("roll", _ROLL["down"]), 1.0),
+                                    (("hands", 0.3), 0.0)])
+                flex = flex + cross * _ROLL["cross_flex"]
+                knee_flex = knee_flex + cross * _ROLL["cross_knee"]
             angles[:, hip, 1] = -flex
             angles[:, knee, 1] = knee_flex
             # Legs a little apart lying; on hands and knees each knee under its hip (the hips are
             # flexed 90 deg there, where abduction would make their hinges flip).
             angles[:, hip, 0] = sign * c([("lie", 3 * DEG), ("push", 3 * DEG), ("kneel", 0.0)])
+            if self.start == "back" and sign == self.roll_sign:
+                angles[:, hip, 0] -= sign * cross * _ROLL["cross_adduct"]
             # Toes tucked under on the floor: the foot at a right angle to the shin.
             angles[:, ankle, 1] = c([("lie", 25 * DEG), ("hands", 25 * DEG), ("kneel", 0.0)])
             angles[:, B[f"{s}_Toe"], 1] = self.toe_curve(s)
@@ -215,16 +252,72 @@ class _Getup:
         return quat, angles
 
     def hand_weight(self) -> np.ndarray:
-        """0: the arm free, 1: the hand on its floor point."""
+        """0: the arm free, 1: the hand on its floor point (pushing up onto hands and knees)."""
         return self.curve([("roll", 0.0), ("hands", 0.0), ("push", 1.0), ("lift", 1.0), (("lift", 0.6), 0.0)])
 
+    def _roll_sides(self):
+        """(the side rolled onto, the side on top) of a roll from the back."""
+        bottom = next(s for s, sign in SIDES.items() if sign != self.roll_sign)
+        return bottom, next(s for s in SIDES if s != bottom)
+
     def free_arms(self):
-        """Arm posture when not on the floor: along the body lying, forward while rising."""
+        """Arm posture when not on the floor: along the body lying, forward while rising. Rolling
+        from the back, the arm underneath sweeps overhead and the top arm reaches forward."""
         c = self.curve
-        flex = c([("lie", -10 * DEG), ("lift", -10 * DEG), ("up", 35 * DEG), ("stand", 8 * DEG), ("still", 0.0)])
-        abduct = c([("lie", 8 * DEG), ("up", 12 * DEG), ("stand", 10 * DEG)])
+        flex_keys = [("lie", -10 * DEG), ("lift", -10 * DEG), ("up", 35 * DEG), ("stand", 8 * DEG), ("still", 0.0)]
+        abduct_keys = [("lie", 8 * DEG), ("up", 12 * DEG), ("stand", 10 * DEG)]
         elbow = c([("lie", 10 * DEG), ("lift", 10 * DEG), ("up", 30 * DEG), ("stand", 15 * DEG)])
-        return {s: _arm(self.t, s, flex, abduct, elbow) for s in SIDES}
+        arms = {s: _arm(self.t, s, c(flex_keys), c(abduct_keys), elbow) for s in SIDES}
+        if self.start == "back":
+            bottom, top = self._roll_sides()
+            r = _ROLL
+            abduct = c([("lie", 8 * DEG), ("roll", 8 * DEG), (("roll", r["sweep"]), r["overhead"]),
+                        (("roll", r["down"]), r["overhead"]), ("push", 8 * DEG)] + abduct_keys[1:])
+            # overhead, the arm is lifted off the floor towards whichever side of the body is up
+            # (the chest while on the back, the back once on the front), so it never digs in
+            psi = c([("lie", -1.0), (("roll", r["turn"]), -1.0), ("hands", 1.0)])
+            up = c([("roll", 0.0), (("roll", r["sweep"]), 1.0), (("roll", r["down"]), 1.0), ("push", 0.0)])
+            flex = c(flex_keys) * (1 - up) + up * psi * r["overhead_lift"]
+            arms[bottom] = _arm(self.t, bottom, flex, abduct, elbow)
+            reach = r["top_down"] or (0.35, 0.6)
+            flex = c([("lie", -10 * DEG), (("roll", reach[0]), -10 * DEG), (("roll", reach[1]), r["top_flex"]),
+                      (("roll", r["down"]), -10 * DEG)] + flex_keys[1:])
+            arms[top] = _arm(self.t, top, flex, c(abduct_keys), elbow)
+        return arms
+
+    def hand_plan(self, root, local):
+        """{side: (weight (T,), floor point (T, 3))}: 0 the arm free, 1 the hand on its floor point.
+        Pushing up, both hands on the points `_hand_targets` gives; rolling from the back, first
+        on the roll's points (set where the body lies on its side), carried over to the push
+        points through the hands phase along a low arc."""
+        push_w = self.hand_weight()
+        push = self._hand_targets(root, local)
+        plan = {s: (push_w, np.tile(push[s], (len(self.t), 1))) for s in SIDES}
+        if self.start != "back":
+            return plan
+        r, c = _ROLL, self.curve
+        body_pos, body_quat = forward_kinematics(root, local, OFFSETS)
+        i = int(np.searchsorted(self.t, self.keys["roll"] + r["side"] * (self.keys["hands"] - self.keys["roll"])))
+        along = _normalize(body_pos[i, B["Head"], :2] - body_pos[i, B["Pelvis"], :2])
+        face = quat_apply(body_quat[i, B["Chest"]], np.array([1.0, 0.0, 0.0]))[:2]
+        face = _normalize(face - (face @ along) * along)
+        bottom, top = self._roll_sides()
+        roll_point = {
+            bottom: body_pos[i, B[f"{bottom}_Shoulder"], :2] + r["bottom_reach"] * along + r["bottom_face"] * face,
+            top: body_pos[i, B["Chest"], :2] + r["top_ahead"] * face + r["top_along"] * along,
+        }
+        down = {bottom: (("roll", r["sweep"]), ("roll", r["bottom_down"])),
+                top: tuple(("roll", u) for u in r["top_down"] or (0, 0))}
+        move = c([("hands", 0.0), ("push", 1.0)])
+        arc = 0.06 * np.sin(np.pi * move)
+        for s in SIDES:
+            if (s == bottom and r["bottom_down"] is None) or (s == top and r["top_down"] is None):
+                continue
+            w = np.maximum(push_w, c([(down[s][0], 0.0), (down[s][1], 1.0), ("hands", 1.0)]) * (self.t < self.keys["push"]))
+            point = (1 - move[:, None]) * np.append(roll_point[s], 0.0) + move[:, None] * push[s]
+            point[:, 2] += arc
+            plan[s] = (np.maximum(w, push_w), point)
+        return plan
 
     # ----------------------------------------------------------------- the solve
 
@@ -236,11 +329,13 @@ class _Getup:
         root = np.zeros((n, 3))
         self._level(local)
         free = self.free_arms()
-        self._solve_arms(root, local, free, None, None)
+        self._solve_arms(root, local, free, None)
 
         # Floor phases: height from the lowest point (hands aside), position pinned on contacts.
         root[:, 2] = self._floor_height(root, local) - _SINK
         root[:, :2] = self._pinned(root, local)
+        if self.start == "back":
+            self._push_off(root, local)
         self._slide_knees(root, local)
 
         # From the bear stance on: both legs by IK on their feet, the pelvis on its key heights and,
@@ -250,9 +345,8 @@ class _Getup:
         self._rise(spec, local, i_bear)
         root = spec.pelvis_pos
 
-        # Hands on fixed floor points while they bear weight.
-        w = self.hand_weight()
-        self._solve_arms(root, local, free, self._hand_targets(root, local), w)
+        # Hands on floor points while they bear weight.
+        self._solve_arms(root, local, free, self.hand_plan(root, local))
         # Whatever the blend left under the floor is lifted out (a few mm at most).
         body_pos, body_quat = forward_kinematics(root, local, OFFSETS)
         low = lowest_point(body_pos, body_quat, SKELETON)
@@ -264,6 +358,7 @@ class _Getup:
         legs reach equally low: it then rests on both, with the centre of mass between them,
         instead of balancing on its pelvis. Blended out as the hands take the weight."""
         upper = [B[b] for b in ("Torso", "Spine", "Chest", "Neck", "Head", "L_Thorax", "R_Thorax")]
+        upper += [int(i) for i in np.setdiff1d(self.floor_bodies, _FLOOR_BODIES)]
         lower = [0] + [B[f"{s}_{j}"] for s in SIDES for j in ("Hip", "Knee", "Ankle", "Toe")]
         grid = np.linspace(-12, 12, 25) * DEG
         gaps = []
@@ -280,6 +375,46 @@ class _Getup:
         delta = _smooth(best, 5) * weight
         local[:, 0] = quat_mul(_axis_quat(1, delta), local[:, 0])
 
+    def _push_off(self, root, local) -> None:
+        """Rolling from the back, the top leg sets its foot on the floor beside the buttock and
+        pushes: the ankle stays on its floor point while the pelvis turns (the knee bending about
+        the hip's own hinge axis, so the thigh turns with the pelvis and the foot rolls onto its
+        edge), and the body rolls over a support on the side it leaves rather than tipping over
+        its edge. The floor phases' height and position are then solved again with that leg."""
+        r, c = _ROLL, self.curve
+        bottom, top = self._roll_sides()
+        i0 = self._index("roll")
+        body_pos, _ = forward_kinematics(root, local, OFFSETS)
+        hip0 = body_pos[i0, B[f"{top}_Hip"]]
+        feet = _normalize(body_pos[i0, B["Pelvis"], :2] - body_pos[i0, B["Head"], :2])
+        out = _normalize(hip0[:2] - body_pos[i0, B[f"{bottom}_Hip"], :2])
+        planted = np.append(hip0[:2] + r["foot_along"] * feet + r["foot_out"] * out, _ANKLE_HEIGHT)
+        lying = body_pos[:, B[f"{top}_Ankle"]]
+        u = c([(("roll", r["plant"][0]), 0.0), (("roll", r["plant"][1]), 1.0)])
+        ankle = lying + u[:, None] * (planted - lying)
+        ankle[:, 2] += 0.08 * np.sin(np.pi * u)  # lifted on the way
+        hip = body_pos[:, B[f"{top}_Hip"]]
+        thigh, shank, c0, rr, phi = _knee_terms(top)
+        d = ankle - hip
+        k = phi + np.arccos(np.clip((np.sum(d * d, -1) - c0) / (2 * rr), -1.0, np.cos(MIN_KNEE - phi)))
+        leg_rest = thigh + quat_apply(_axis_quat(1, k), shank)  # hip -> ankle in the hip's rest frame
+        pelvis_m = quat_to_matrix(local[:, 0])
+        # the knee bends about the pelvis' own left axis (the hip's flexion hinge), not a level one
+        hip_world = _frame(d, pelvis_m[:, :, 1]) @ np.swapaxes(_frame(leg_rest, np.array([0.0, 1.0, 0.0])), -1, -2)
+        solved = {"Hip": quat_from_matrix(np.swapaxes(pelvis_m, -1, -2) @ hip_world), "Knee": _axis_quat(1, k),
+                  # the foot at about a right angle to the shank, its sole towards the floor
+                  "Ankle": _axis_quat(1, np.full(len(k), r["foot_flex"]))}
+        w = c([(("roll", r["plant"][0]), 0.0), (("roll", r["plant"][1]), 1.0), (("roll", r["push"]), 1.0),
+               (("roll", r["release"]), 0.0)])
+        for joint, q in solved.items():
+            j = B[f"{top}_{joint}"]
+            local[:, j] = _slerp(local[:, j], q, w)
+        # Solved once: the new contacts move the body a little (the pinning averages over all of
+        # them), so the planted foot drifts a few cm over the push; iterating the two made the
+        # leg's solution jump between frames at the quick tempos.
+        root[:, 2] = self._floor_height(root, local) - _SINK
+        root[:, :2] = self._pinned(root, local)
+
     def _index(self, phase: str) -> int:
         return int(np.searchsorted(self.t, self.keys[phase] - 1e-9))
 
@@ -287,7 +422,7 @@ class _Getup:
         """Pelvis height per frame that puts the lowest floor body (the arms aside) on the floor."""
         body_pos, body_quat = forward_kinematics(root * [1, 1, 0], local, OFFSETS)
         pts, reach = support_points_world(body_pos, body_quat, SKELETON)
-        z = pts[:, _FLOOR_BODIES][..., 2] - reach[_FLOOR_BODIES]
+        z = pts[:, self.floor_bodies][..., 2] - reach[self.floor_bodies]
         return -z.reshape(len(z), -1).min(1)
 
     def _pinned(self, root, local) -> np.ndarray:
@@ -295,7 +430,7 @@ class _Getup:
         move horizontally (their mean displacement is cancelled)."""
         body_pos, body_quat = forward_kinematics(root * [0, 0, 1], local, OFFSETS)
         pts, reach = support_points_world(body_pos, body_quat, SKELETON)
-        pts, reach = pts[:, _FLOOR_BODIES], reach[_FLOOR_BODIES]
+        pts, reach = pts[:, self.floor_bodies], reach[self.floor_bodies]
         touch = pts[..., 2] - reach < 0.015
         both = (touch[1:] & touch[:-1])[..., None]  # (T-1, bodies, K, 1)
         moved = np.where(both, pts[1:, ..., :2] - pts[:-1, ..., :2], 0.0).sum((1, 2))
@@ -329,18 +464,19 @@ class _Getup:
             targets[s] = np.concatenate([xy, [0.0]])
         return targets
 
-    def _solve_arms(self, root, local, free, targets, w):
-        """Shoulder and elbow rotations: the free posture; where `w` > 0 the hand is aimed at the
-        point blending where the free posture puts it (w = 0) and its floor target (w = 1), so a
-        hand is put down and lifted along a path, never through the floor."""
+    def _solve_arms(self, root, local, free, plan):
+        """Shoulder and elbow rotations: the free posture; where a side's weight in `plan` is > 0
+        the hand is aimed at the point blending where the free posture puts it (0) and its floor
+        point (1), so a hand is put down and lifted along a path, never through the floor."""
         for s in SIDES:
             upper, elbow, twist = (np.array(a, float) for a in free[s])
             _, body_quat = forward_kinematics(root, local, OFFSETS)
             _solve_arm(s, body_quat[:, B["Chest"]], body_quat[:, B[f"{s}_Thorax"]], upper, elbow, twist, local)
-            if targets is None:
+            if plan is None:
                 continue
+            w, target = plan[s]
             free_low = self._hand_low(root, local, s)
-            aim = (1 - w[:, None]) * free_low + w[:, None] * targets[s]
+            aim = (1 - w[:, None]) * free_low + w[:, None] * target
             aim[:, 2] = np.maximum(aim[:, 2], 0.0)
             on = w > 0
             upper_f, elbow_f = self._reach(root[on], local[on], s, aim[on], upper[on], elbow[on], twist[on])
@@ -469,6 +605,19 @@ def _smooth(x, radius: int):
     drawn parameters are tuned with exactly this one)."""
     taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / (radius / 2)) ** 2)
     return np.convolve(np.pad(x, radius, mode="edge"), taps / taps.sum(), mode="valid")
+
+
+def _slerp(q0, q1, w):
+    """Per-frame spherical interpolation from quaternions q0 to q1 (T, 4) by weights w (T,)."""
+    q1 = np.where((np.sum(q0 * q1, -1) < 0)[:, None], -q1, q1)
+    dot = np.clip(np.sum(q0 * q1, -1), -1.0, 1.0)
+    theta = np.arccos(dot)[:, None]
+    s = np.sin(theta)
+    small = s < 1e-6
+    a = np.where(small, 1 - w[:, None], np.sin((1 - w[:, None]) * theta) / np.where(small, 1, s))
+    b = np.where(small, w[:, None], np.sin(w[:, None] * theta) / np.where(small, 1, s))
+    out = a * q0 + b * q1
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 
 def _rotation_between(a, b):

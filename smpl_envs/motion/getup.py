@@ -7,6 +7,11 @@ The corpus has no other motion that starts on the floor, so without this family 
 everything distilled from it, has never seen a body rise (docs/results/learning.md, the recovery
 runs). The clip is directed in phases, each a minimum-jerk blend between key postures:
 
+* rolling from the back onto the front (`_ROLL`), the top leg sets its foot flat beside the
+  buttock and pushes off it (its ankle held on the floor by IK while the pelvis turns), the arm
+  underneath is swept overhead along the floor, out of the way, and the top knee crosses over.
+  The roll used to turn the body over its edge on the arm along its side, the hips lifted off the
+  floor, with no support on the side it left: no policy or PD follows that (docs/results/learning.md);
 * on the floor (lying, rolling, pushing back, on hands and knees) the legs and spine are hinge
   angles; the pelvis height puts the lowest point of the body (hands aside) on the floor, and its
   horizontal position keeps the body's contacts with the floor where they were (a body pushes

@@ -13,7 +13,10 @@ by a trained imitation policy, deterministic, in the settings it was trained wit
   (0.5 m), of the clip's frames;
 - lost in: the phase of the clip at that frame (the generator's phases, from the clip's
   parameters in the corpus manifest, or "-" when it is followed to the end);
-- d <phase>: the mean body distance (m) over each phase, while still followed.
+- d <phase>: the mean body distance (m) over each phase, while still followed;
+- from the back, whether and when the simulated body was first face down (the pelvis' forward
+  axis pointing more than 30 deg below level): a body that stays on its back through a roll is
+  still within 0.5 m of it for most of the clip, so "followed" alone does not say it rolled.
 
 A second table is the reference's own: per phase, the smallest margin of its zero-moment point
 inside the hull of its floor contacts (`plausibility.zmp_margin`; m, negative: outside) and the
@@ -36,6 +39,7 @@ import gymnasium as gym
 import numpy as np
 
 import smpl_envs  # noqa: F401 (registers the ids)
+from smpl_envs.humanoid.skeleton import BODY_NAMES
 from smpl_envs.motion import MotionLib
 from smpl_envs.motion import corpus as C
 from smpl_envs.motion import getup as gu
@@ -54,24 +58,43 @@ def phase_frames(params: dict) -> dict[str, tuple[int, int]]:
             for p, (a, b) in gu.phases(**{k: params[k] for k in GETUP_ARGS}).items()}
 
 
-def follow(lib: MotionLib, act, env_kwargs: dict) -> np.ndarray:
-    """(clips, frames) mean body distance to the reference, NaN past a clip's end."""
+_HIPS = [BODY_NAMES.index(f"{s}_Hip") for s in "LR"]
+_SPINE = BODY_NAMES.index("Torso")
+
+
+def facing_height(body_pos: np.ndarray) -> np.ndarray:
+    """(...,) height of the unit forward axis of the pelvis (-1: face down, +1: face up), from
+    body positions (..., 24, 3): forward = left (right hip to left hip) x up (pelvis to torso)."""
+    left = body_pos[..., _HIPS[0], :] - body_pos[..., _HIPS[1], :]
+    forward = np.cross(left, body_pos[..., _SPINE, :] - body_pos[..., 0, :])
+    return forward[..., 2] / np.linalg.norm(forward, axis=-1)
+
+
+def follow(lib: MotionLib, act, env_kwargs: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(clips, frames) mean body distance to the reference and the simulated body's
+    `facing_height`, NaN past a clip's end."""
     n, frames = lib.num_motions, int(lib.lengths.max())
     env = gym.make_vec(ENV_ID, num_envs=n, motions=lib, termination_distance=None, autoreset_mode="Disabled",
                        **env_kwargs)
     try:
         obs, info = env.reset(seed=0, options={"start": "beginning", "motion_ids": np.arange(n)})
-        dist = np.full((n, frames), np.nan)
+        dist, facing = np.full((n, frames), np.nan), np.full((n, frames), np.nan)
         for t in range(1, frames):
             obs, _, _, _, info = env.step(act(obs))
-            d = np.linalg.norm(np.asarray(info["body_pos"]) - np.asarray(info["ref_body_pos"]), axis=-1).mean(-1)
+            body = np.asarray(info["body_pos"])
+            d = np.linalg.norm(body - np.asarray(info["ref_body_pos"]), axis=-1).mean(-1)
             dist[:, t] = np.where(t < lib.lengths, d, np.nan)
+            facing[:, t] = np.where(t < lib.lengths, facing_height(body), np.nan)
     finally:
         env.close()
-    return dist
+    return dist, facing
 
 
-def report(lib: MotionLib, manifest: dict, dist: np.ndarray, threshold: float) -> list[dict]:
+def report(lib: MotionLib, manifest: dict, dist: np.ndarray, threshold: float,
+           facing: np.ndarray | None = None) -> list[dict]:
+    """Per clip: frames followed, the phase it was lost in, the mean distance per phase and, from
+    the back with `facing` given, the first frame the simulated body was face down ("turned",
+    None if never): a body can stay within the distance threshold of a roll it never made."""
     rows = []
     for i, name in enumerate(lib.names):
         spans = phase_frames(manifest[name])
@@ -80,8 +103,12 @@ def report(lib: MotionLib, manifest: dict, dist: np.ndarray, threshold: float) -
         lost = int(over[0]) if len(over) else length
         lost_in = "-" if lost == length else next((p for p, (a, b) in spans.items() if a <= lost < b), "end")
         means = {p: float(np.nanmean(dist[i, a:min(b, lost)])) if a < lost else None for p, (a, b) in spans.items()}
-        rows.append({"clip": name, "start": manifest[name]["start"], "followed": lost, "frames": length,
-                     "lost_in": lost_in, "distance": means})
+        row = {"clip": name, "start": manifest[name]["start"], "followed": lost, "frames": length,
+               "lost_in": lost_in, "distance": means}
+        if facing is not None and manifest[name]["start"] == "back":
+            down = np.flatnonzero(facing[i, :length] < -0.5)
+            row["turned"] = int(down[0]) if len(down) else None
+        rows.append(row)
     return rows
 
 
@@ -96,6 +123,11 @@ def table(rows: list[dict], title: str) -> str:
     full = np.mean([r["followed"] == r["frames"] for r in rows])
     lines.append(f"mean frames followed {np.mean([r['followed'] for r in rows]):.0f}; "
                  f"followed to the end {100 * full:.0f} %")
+    backs = [r for r in rows if "turned" in r]
+    if backs:
+        turned = [r["turned"] for r in backs if r["turned"] is not None]
+        lines.append(f"from the back, turned face down: {len(turned)} of {len(backs)}"
+                     + (f" (first frame {min(turned)}-{max(turned)})" if turned else ""))
     return "\n".join(lines)
 
 
@@ -162,7 +194,8 @@ def main(argv=None) -> list[dict]:
         title = f"PD on the reference (zero residual) on {args.motions}"
     if args.tempo_scale != 1.0:
         title += f", {args.tempo_scale:g} times as fast"
-    rows = report(lib, manifest, follow(lib, act, kwargs), args.threshold)
+    dist, facing = follow(lib, act, kwargs)
+    rows = report(lib, manifest, dist, args.threshold, facing)
     print(table(rows, title + f" (lost: mean body distance > {args.threshold} m)"))
     print()
     print(zmp_table(raws, manifest))

@@ -97,6 +97,15 @@ def test_bad_parameters_are_named(kwargs, match):
         getup(**kwargs)
 
 
+def test_facing_height_reads_face_up_and_face_down_from_body_positions():
+    bench = _getup_follow()
+    for start, sign in (("back", 1), ("front", -1)):
+        raw = getup(start, lie=0.5)
+        pos, _ = forward_kinematics(raw.root_pos, raw.local_quat, MEAN_SKELETON.offsets)
+        assert sign * bench.facing_height(pos[0]) > 0.9  # lying still at the start
+        assert abs(bench.facing_height(pos[-1])) < 0.3  # standing at the end: facing level
+
+
 def _getup_follow():
     import importlib.util
     from pathlib import Path
@@ -127,6 +136,15 @@ def test_the_follow_benchmark_names_the_phase_a_clip_is_lost_in():
     dist[0, lost:] = 0.1
     (row,) = bench.report(Lib, {"g": params}, dist, threshold=0.5)
     assert row["followed"] == row["frames"] and row["lost_in"] == "-"
+    # from the back, the first face-down frame of the simulated body is reported
+    back = {**params, "start": "back"}
+    facing = np.ones((1, int(Lib.lengths[0])))
+    (row,) = bench.report(Lib, {"g": back}, dist, 0.5, facing)
+    assert row["turned"] is None
+    facing[0, 40:] = -0.9
+    (row,) = bench.report(Lib, {"g": back}, dist, 0.5, facing)
+    assert row["turned"] == 40
+    assert "turned" not in bench.report(Lib, {"g": params}, dist, 0.5, facing)[0]  # from the front: no roll
     with pytest.raises(SystemExit, match="get-up clips only"):
         bench.main(["--motions", "corpus:test/walk"])
     with pytest.raises(SystemExit, match="tempo-scale 9.*outside"):  # beyond getup.TEMPO_LIMITS

@@ -109,32 +109,27 @@ _FEET = dict(
     heel_land=28 * DEG,  # ... as a foot lands (then flattened in the crouch)
 )
 _OVER_FEET = 0.92  # share of the crouch by which the centre of mass is over the feet
-# The roll from the back onto the front, each time a share of the roll phase. The arm underneath
-# sweeps overhead along the floor and its hand is put down beyond the head; the top knee crosses
-# over to the floor and the top hand is put down ahead of the chest, so that lying on the side the
-# body rests on a base (hand overhead, side, knee, hand ahead) instead of a line of contacts.
+# The roll from the back onto the front, each time a share of the roll phase. The top leg sets its
+# foot beside the buttock and pushes off it while the pelvis turns (a simulated pelvis has no
+# motor: it turns only when a limb pushes it over); the arm underneath sweeps overhead along the
+# floor, out from under the body, and comes down for the push once the body is face down; the top
+# arm reaches forward; the top knee crosses over.
 _ROLL = dict(
     duration=2.0,          # s at tempo 1
     turn=0.2,              # the pelvis starts to turn about its long axis
     overhead=172 * DEG,    # abduction of the arm underneath, swept overhead by
-    sweep=0.35,            # ... here,
-    overhead_lift=15 * DEG,  # and lifted off the floor; brought down from here to the push
-    down=0.8,
-    bottom_down=None,      # its hand on the floor from here,
-    bottom_reach=0.45,     # this far beyond the shoulder along the body (m),
-    bottom_face=0.0,       # and this far towards where the chest faces when on the side (m)
-    side=0.6,              # the share at which the body is on its side (floor points are set there)
-    top_flex=30 * DEG,     # the top arm reaches forward,
-    top_down=None,         # its hand put down between these shares (None: not put down),
-    top_ahead=0.25,        # this far ahead of the chest (m, where it faces on the side),
-    top_along=0.0,         # and this far towards the head
-    plant=(0.05, 0.3),    # the top foot is set down near the buttock between these shares,
-    push=0.6,              # ... pushes (stays on its floor point as the pelvis turns) until here,
+    sweep=0.35,            # ... here, held there lifted off the floor
+    overhead_lift=15 * DEG,
+    down=0.8,              # ... and brought down from here to the push (the top arm too)
+    top_reach=(0.35, 0.6),  # the top arm reaches forward between these shares,
+    top_flex=30 * DEG,     # this far
+    plant=(0.05, 0.3),     # the top foot is set down beside the buttock between these shares,
+    push=0.6,              # pushes (its ankle stays on its floor point as the pelvis turns) until here,
     release=0.85,          # and the leg is back in its crossed posture by here
-    foot_along=0.42,       # m: the planted ball of the foot, this far from the hip towards the feet,
+    foot_along=0.42,       # m: the planted ankle, this far from the hip towards the feet,
     foot_out=0.06,         # and this far out to the top side
     foot_flex=-10 * DEG,   # the ankle's hinge while the foot is down
-    cross=0.5,             # the top leg crossed over by here, held until the roll ends
+    cross=0.5,             # the top leg crossed over by here, held until `down`
     cross_flex=50 * DEG, cross_knee=70 * DEG, cross_adduct=8 * DEG,
 )
 _DURATIONS = (("hands", 0.7), ("push", 1.3), ("bear", 0.9), ("foot_1", 0.8), ("foot_2", 0.8), ("crouch", 1.0),
@@ -184,8 +179,8 @@ class _Getup:
     def __init__(self, start, side, roll, tempo, hand_width, hand_ahead, lie, kneel):
         self.side, self.back = side, ("R" if side == "L" else "L")
         self.hand_width, self.hand_ahead = hand_width, hand_ahead
-        durations = [("lie", lie), ("roll", _ROLL["duration"] if start == "back" else 0.0), *_DURATIONS[:2], ("kneel", kneel),
-                     *_DURATIONS[2:], ("still", 0.5)]
+        roll = _ROLL["duration"] if start == "back" else 0.0
+        durations = [("lie", lie), ("roll", roll), *_DURATIONS[:2], ("kneel", kneel), *_DURATIONS[2:], ("still", 0.5)]
         self.keys, t = {}, 0.0
         for phase, d in durations:
             self.keys[phase] = t
@@ -257,7 +252,7 @@ class _Getup:
         return quat, angles
 
     def hand_weight(self) -> np.ndarray:
-        """0: the arm free, 1: the hand on its floor point (pushing up onto hands and knees)."""
+        """0: the arm free, 1: the hand on its floor point."""
         return self.curve([("roll", 0.0), ("hands", 0.0), ("push", 1.0), ("lift", 1.0), (("lift", 0.6), 0.0)])
 
     def _roll_sides(self):
@@ -284,45 +279,11 @@ class _Getup:
             up = c([("roll", 0.0), (("roll", r["sweep"]), 1.0), (("roll", r["down"]), 1.0), ("push", 0.0)])
             flex = c(flex_keys) * (1 - up) + up * psi * r["overhead_lift"]
             arms[bottom] = _arm(self.t, bottom, flex, abduct, elbow)
-            reach = r["top_down"] or (0.35, 0.6)
+            reach = r["top_reach"]
             flex = c([("lie", -10 * DEG), (("roll", reach[0]), -10 * DEG), (("roll", reach[1]), r["top_flex"]),
                       (("roll", r["down"]), -10 * DEG)] + flex_keys[1:])
             arms[top] = _arm(self.t, top, flex, c(abduct_keys), elbow)
         return arms
-
-    def hand_plan(self, root, local):
-        """{side: (weight (T,), floor point (T, 3))}: 0 the arm free, 1 the hand on its floor point.
-        Pushing up, both hands on the points `_hand_targets` gives; rolling from the back, first
-        on the roll's points (set where the body lies on its side), carried over to the push
-        points through the hands phase along a low arc."""
-        push_w = self.hand_weight()
-        push = self._hand_targets(root, local)
-        plan = {s: (push_w, np.tile(push[s], (len(self.t), 1))) for s in SIDES}
-        if self.start != "back":
-            return plan
-        r, c = _ROLL, self.curve
-        body_pos, body_quat = forward_kinematics(root, local, OFFSETS)
-        i = int(np.searchsorted(self.t, self.keys["roll"] + r["side"] * (self.keys["hands"] - self.keys["roll"])))
-        along = _normalize(body_pos[i, B["Head"], :2] - body_pos[i, B["Pelvis"], :2])
-        face = quat_apply(body_quat[i, B["Chest"]], np.array([1.0, 0.0, 0.0]))[:2]
-        face = _normalize(face - (face @ along) * along)
-        bottom, top = self._roll_sides()
-        roll_point = {
-            bottom: body_pos[i, B[f"{bottom}_Shoulder"], :2] + r["bottom_reach"] * along + r["bottom_face"] * face,
-            top: body_pos[i, B["Chest"], :2] + r["top_ahead"] * face + r["top_along"] * along,
-        }
-        down = {bottom: (("roll", r["sweep"]), ("roll", r["bottom_down"])),
-                top: tuple(("roll", u) for u in r["top_down"] or (0, 0))}
-        move = c([("hands", 0.0), ("push", 1.0)])
-        arc = 0.06 * np.sin(np.pi * move)
-        for s in SIDES:
-            if (s == bottom and r["bottom_down"] is None) or (s == top and r["top_down"] is None):
-                continue
-            w = np.maximum(push_w, c([(down[s][0], 0.0), (down[s][1], 1.0), ("hands", 1.0)]) * (self.t < self.keys["push"]))
-            point = (1 - move[:, None]) * np.append(roll_point[s], 0.0) + move[:, None] * push[s]
-            point[:, 2] += arc
-            plan[s] = (np.maximum(w, push_w), point)
-        return plan
 
     # ----------------------------------------------------------------- the solve
 
@@ -334,7 +295,7 @@ class _Getup:
         root = np.zeros((n, 3))
         self._level(local)
         free = self.free_arms()
-        self._solve_arms(root, local, free, None)
+        self._solve_arms(root, local, free, None, None)
 
         # Floor phases: height from the lowest point (hands aside), position pinned on contacts.
         root[:, 2] = self._floor_height(root, local) - _SINK
@@ -350,8 +311,9 @@ class _Getup:
         self._rise(spec, local, i_bear)
         root = spec.pelvis_pos
 
-        # Hands on floor points while they bear weight.
-        self._solve_arms(root, local, free, self.hand_plan(root, local))
+        # Hands on fixed floor points while they bear weight.
+        w = self.hand_weight()
+        self._solve_arms(root, local, free, self._hand_targets(root, local), w)
         # Whatever the blend left under the floor is lifted out (a few mm at most).
         body_pos, body_quat = forward_kinematics(root, local, OFFSETS)
         low = lowest_point(body_pos, body_quat, SKELETON)
@@ -469,19 +431,18 @@ class _Getup:
             targets[s] = np.concatenate([xy, [0.0]])
         return targets
 
-    def _solve_arms(self, root, local, free, plan):
-        """Shoulder and elbow rotations: the free posture; where a side's weight in `plan` is > 0
-        the hand is aimed at the point blending where the free posture puts it (0) and its floor
-        point (1), so a hand is put down and lifted along a path, never through the floor."""
+    def _solve_arms(self, root, local, free, targets, w):
+        """Shoulder and elbow rotations: the free posture; where `w` > 0 the hand is aimed at the
+        point blending where the free posture puts it (w = 0) and its floor target (w = 1), so a
+        hand is put down and lifted along a path, never through the floor."""
         for s in SIDES:
             upper, elbow, twist = (np.array(a, float) for a in free[s])
             _, body_quat = forward_kinematics(root, local, OFFSETS)
             _solve_arm(s, body_quat[:, B["Chest"]], body_quat[:, B[f"{s}_Thorax"]], upper, elbow, twist, local)
-            if plan is None:
+            if targets is None:
                 continue
-            w, target = plan[s]
             free_low = self._hand_low(root, local, s)
-            aim = (1 - w[:, None]) * free_low + w[:, None] * target
+            aim = (1 - w[:, None]) * free_low + w[:, None] * targets[s]
             aim[:, 2] = np.maximum(aim[:, 2], 0.0)
             on = w > 0
             upper_f, elbow_f = self._reach(root[on], local[on], s, aim[on], upper[on], elbow[on], twist[on])

@@ -179,8 +179,8 @@ class _Getup:
     def __init__(self, start, side, roll, tempo, hand_width, hand_ahead, lie, kneel):
         self.side, self.back = side, ("R" if side == "L" else "L")
         self.hand_width, self.hand_ahead = hand_width, hand_ahead
-        roll = _ROLL["duration"] if start == "back" else 0.0
-        durations = [("lie", lie), ("roll", roll), *_DURATIONS[:2], ("kneel", kneel), *_DURATIONS[2:], ("still", 0.5)]
+        rolling = _ROLL["duration"] if start == "back" else 0.0
+        durations = [("lie", lie), ("roll", rolling), *_DURATIONS[:2], ("kneel", kneel), *_DURATIONS[2:], ("still", 0.5)]
         self.keys, t = {}, 0.0
         for phase, d in durations:
             self.keys[phase] = t

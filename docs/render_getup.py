@@ -3,7 +3,7 @@
 strip of the fallen start, six frames evenly over the trial (0, 2, ..., 10 s), for the README.
 
     python docs/render_getup.py CHECKPOINT_OR_RUN_OR_NAME [--seconds 10] [--seed 0]
-        [--out docs/videos/getup.mp4]            # and docs/videos/getup.png, the strip
+        [--fallen-lying back] [--out docs/videos/getup.mp4]   # and docs/videos/getup.png, the strip
 
 Each tile is labelled with its start kind and, from the frame the protocol counts the trial as
 back (mean body distance to the standing reference <= 0.5 m from there to the end:
@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import smpl_envs
+from smpl_envs.humanoid.skeleton import BODY_NAMES
 from smpl_envs.metrics import recovery_frame
 from smpl_envs.render import write_strip, write_video
 
@@ -30,9 +31,11 @@ FPS = 30
 THRESHOLD = 0.5  # the protocol's success distance (m)
 
 
-def episode(agent, kind: str, steps: int, seed: int, tmp: Path) -> tuple[list[np.ndarray], np.ndarray]:
+def episode(agent, kind: str, steps: int, seed: int, tmp: Path,
+            lying: str | None = None) -> tuple[list[np.ndarray], np.ndarray]:
     """Frames of one trial from a `kind` start (the frame after the reset and after each step)
-    and the mean body distance to the reference at each of them."""
+    and the mean body distance to the reference at each of them; with `lying` ("front" or
+    "back"), from the first seed on whose start lies that way."""
     import gymnasium as gym
     import imageio.v2 as imageio
 
@@ -59,6 +62,13 @@ def episode(agent, kind: str, steps: int, seed: int, tmp: Path) -> tuple[list[np
                                                                   "continue_prob": 0.0, "max_episode_steps": steps,
                                                                   "termination_distance": None,
                                                                   "far_distance": (3.0, 3.0), "render_size": TILE}, ())
+    if lying is not None:  # the first seed from `seed` whose start lies that way (before any step)
+        probe = gym.make("SMPL/Recovery-v0", **kwargs)
+        try:
+            while _lying(probe.reset(seed=seed, options={"recovery_start": kind, "start": "beginning"})[1]) != lying:
+                seed += 1
+        finally:
+            probe.close()
     env = Trial(gym.make("SMPL/Recovery-v0", render_mode="rgb_array", **kwargs))
     path = tmp / f"{kind}.mp4"
     try:
@@ -68,6 +78,15 @@ def episode(agent, kind: str, steps: int, seed: int, tmp: Path) -> tuple[list[np
         env.close()
     with imageio.get_reader(path) as reader:
         return [np.asarray(f) for f in reader], np.asarray(distances)
+
+
+def _lying(info) -> str:
+    """"front" (face down) or "back" from the body positions: the pelvis' forward axis, left (right
+    hip to left hip) x up (pelvis to torso), pointing down or up."""
+    pos = np.asarray(info["body_pos"], np.float64)
+    names = BODY_NAMES
+    left = pos[names.index("L_Hip")] - pos[names.index("R_Hip")]
+    return "front" if np.cross(left, pos[names.index("Torso")] - pos[0])[2] < 0 else "back"
 
 
 def _distance(info) -> float:
@@ -81,6 +100,9 @@ def main(argv=None) -> None:
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("docs/videos/getup.mp4"))
+    parser.add_argument("--fallen-lying", choices=("front", "back"),
+                        help="the fallen trial: the first seed from --seed whose start lies this way (chosen by "
+                             "how the body lies before any step, not by the outcome)")
     args = parser.parse_args(argv)
     from agents.run import _load_target  # the command line's own lookup of runs and names
 
@@ -89,7 +111,8 @@ def main(argv=None) -> None:
     tiles = []
     with tempfile.TemporaryDirectory() as tmp:
         for kind in KINDS:
-            frames, dist = episode(agent, kind, steps, args.seed, Path(tmp))
+            lying = args.fallen_lying if kind == "fallen" else None
+            frames, dist = episode(agent, kind, steps, args.seed, Path(tmp), lying)
             back = int(recovery_frame(dist[None], THRESHOLD)[0])
             back = back if back >= 0 else None
             text = lambda i: kind + (f"  back after {back / FPS:.1f} s" if back is not None and i >= back else "")  # noqa: E731

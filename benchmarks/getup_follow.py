@@ -39,7 +39,7 @@ import gymnasium as gym
 import numpy as np
 
 import smpl_envs  # noqa: F401 (registers the ids)
-from smpl_envs.humanoid.skeleton import BODY_NAMES
+from smpl_envs.features import facing_height
 from smpl_envs.motion import MotionLib
 from smpl_envs.motion import corpus as C
 from smpl_envs.motion import getup as gu
@@ -56,18 +56,6 @@ def phase_frames(params: dict) -> dict[str, tuple[int, int]]:
     """{phase: (first frame, end frame)} of the get-up drawn with `params` (its manifest record)."""
     return {p: (int(round(a * FPS)), int(round(b * FPS)))
             for p, (a, b) in gu.phases(**{k: params[k] for k in GETUP_ARGS}).items()}
-
-
-_HIPS = [BODY_NAMES.index(f"{s}_Hip") for s in "LR"]
-_SPINE = BODY_NAMES.index("Torso")
-
-
-def facing_height(body_pos: np.ndarray) -> np.ndarray:
-    """(...,) height of the unit forward axis of the pelvis (-1: face down, +1: face up), from
-    body positions (..., 24, 3): forward = left (right hip to left hip) x up (pelvis to torso)."""
-    left = body_pos[..., _HIPS[0], :] - body_pos[..., _HIPS[1], :]
-    forward = np.cross(left, body_pos[..., _SPINE, :] - body_pos[..., 0, :])
-    return forward[..., 2] / np.linalg.norm(forward, axis=-1)
 
 
 def follow(lib: MotionLib, act, env_kwargs: dict) -> tuple[np.ndarray, np.ndarray]:

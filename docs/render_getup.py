@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import smpl_envs
-from smpl_envs.humanoid.skeleton import BODY_NAMES
+from smpl_envs.features import facing_height
 from smpl_envs.metrics import recovery_frame
 from smpl_envs.render import write_strip, write_video
 
@@ -81,12 +81,8 @@ def episode(agent, kind: str, steps: int, seed: int, tmp: Path,
 
 
 def _lying(info) -> str:
-    """"front" (face down) or "back" from the body positions: the pelvis' forward axis, left (right
-    hip to left hip) x up (pelvis to torso), pointing down or up."""
-    pos = np.asarray(info["body_pos"], np.float64)
-    names = BODY_NAMES
-    left = pos[names.index("L_Hip")] - pos[names.index("R_Hip")]
-    return "front" if np.cross(left, pos[names.index("Torso")] - pos[0])[2] < 0 else "back"
+    """"front" (face down) or "back", from the body positions in `info`."""
+    return "front" if facing_height(np.asarray(info["body_pos"], np.float64)) < 0 else "back"
 
 
 def _distance(info) -> float:

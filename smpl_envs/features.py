@@ -104,6 +104,23 @@ def heading_rotation(root_rot):
     return (cs @ _const(m, _HEADING_BASIS, cs) + _const(m, _HEADING_CONST, cs)).reshape(-1, 3, 3)
 
 
+_HIPS = (BODY_NAMES.index("L_Hip"), BODY_NAMES.index("R_Hip"))
+_TORSO = BODY_NAMES.index("Torso")
+
+
+def facing_height(body_pos):
+    """(...,) height of the pelvis' unit forward axis (-1: face down, +1: face up) from body
+    positions (..., 24, 3) alone, for callers that see `info["body_pos"]` and no rotations:
+    forward = left (right hip to left hip) x up (pelvis to torso)."""
+    m = xp(body_pos)
+    left = body_pos[..., _HIPS[0], :] - body_pos[..., _HIPS[1], :]
+    up = body_pos[..., _TORSO, :] - body_pos[..., 0, :]
+    forward = m.stack([left[..., 1] * up[..., 2] - left[..., 2] * up[..., 1],
+                       left[..., 2] * up[..., 0] - left[..., 0] * up[..., 2],
+                       left[..., 0] * up[..., 1] - left[..., 1] * up[..., 0]], -1)
+    return forward[..., 2] / m.sqrt((forward * forward).sum(-1))
+
+
 def to_heading(v, heading):
     """World vectors (N, ..., 3) expressed in each humanoid's heading frame (rotation only)."""
     # Row vectors: (H^T v)^T = v^T H, so one matmul; flatten middle axes for a single batch.

@@ -48,8 +48,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..humanoid.kinematics import forward_kinematics, lowest_point
-from ..rotations import (quat_apply, quat_from_euler_xyz, quat_from_matrix, quat_inv, quat_mul, quat_to_matrix,
-                         yaw_quat)
+from ..rotations import (quat_apply, quat_from_euler_xyz, quat_from_matrix, quat_inv, quat_mul, quat_slerp,
+                         quat_to_matrix, yaw_quat)
 from .motion import FPS, RawMotion
 from .plausibility import centre_of_mass, support_points_world
 from .procedural import (
@@ -375,7 +375,7 @@ class _Getup:
                (("roll", r["release"]), 0.0)])
         for joint, q in solved.items():
             j = B[f"{top}_{joint}"]
-            local[:, j] = _slerp(local[:, j], q, w)
+            local[:, j] = quat_slerp(local[:, j], q, w)
         # Solved once: the new contacts move the body a little (the pinning averages over all of
         # them), so the planted foot drifts a few cm over the push; iterating the two made the
         # leg's solution jump between frames at the quick tempos.
@@ -571,19 +571,6 @@ def _smooth(x, radius: int):
     drawn parameters are tuned with exactly this one)."""
     taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / (radius / 2)) ** 2)
     return np.convolve(np.pad(x, radius, mode="edge"), taps / taps.sum(), mode="valid")
-
-
-def _slerp(q0, q1, w):
-    """Per-frame spherical interpolation from quaternions q0 to q1 (T, 4) by weights w (T,)."""
-    q1 = np.where((np.sum(q0 * q1, -1) < 0)[:, None], -q1, q1)
-    dot = np.clip(np.sum(q0 * q1, -1), -1.0, 1.0)
-    theta = np.arccos(dot)[:, None]
-    s = np.sin(theta)
-    small = s < 1e-6
-    a = np.where(small, 1 - w[:, None], np.sin((1 - w[:, None]) * theta) / np.where(small, 1, s))
-    b = np.where(small, w[:, None], np.sin(w[:, None] * theta) / np.where(small, 1, s))
-    out = a * q0 + b * q1
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 
 def _rotation_between(a, b):

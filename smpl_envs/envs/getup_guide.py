@@ -31,6 +31,7 @@ from ..humanoid.skeleton import BODY_NAMES
 DOWN_HEIGHT = 0.4       # m: a pelvis lower than this is on the floor (hands and knees: 0.4)
 RESTART_DISTANCE = 0.6  # m of mean body distance from the get-up at which a body down starts again
 SETTLE_STEPS = 30       # steps after a start before a restart may come (the body settles into the lie)
+STILL_SPEED = 0.05      # m/s: a clip whose every body moves slower than this from a frame on stands still
 HEAD = BODY_NAMES.index("Head")
 
 
@@ -133,6 +134,12 @@ class GetupGuide(ClipGuide):
         self._prone = b.asarray(np.flatnonzero(prone), "int")
         self._supine = b.asarray(np.flatnonzero(~prone), "int")
         self._clip_angle = b.asarray(_flat_angle(first.pos[:, HEAD, :2] - first.pos[:, 0, :2]))
+        self._still_from = b.asarray(still_from(lib), "int")   # (C,) first frame of each clip's still tail
+        self.still = b.zeros(num_worlds, "int")                # ... of the clip each world is shown
+
+    def standing_still(self):
+        """(N,) the worlds whose get-up is playing its still tail: the body is shown standing."""
+        return self.active & (self.frame >= self.still)
 
     def start(self, mask, body: BodyState, rng) -> None:
         """Worlds in `mask` start a get-up matching how their `body` lies."""
@@ -146,3 +153,16 @@ class GetupGuide(ClipGuide):
                        self._supine[b.integers(rng, 0, len(self._supine), n)])
         angle = _flat_angle(body.pos[ids, HEAD, :2] - body.pos[ids, 0, :2]) - self._clip_angle[clip]
         self._place(ids, clip, angle, body.pos[ids, 0, :2])
+        self.still[ids] = self._still_from[clip]
+
+
+def still_from(lib) -> np.ndarray:
+    """(C,) the library frame from which each clip of `lib` stands still to its end (every body
+    slower than STILL_SPEED); a clip moving to its end gives its last frame."""
+    out = np.empty(lib.num_motions, int)
+    for c in range(lib.num_motions):
+        frames = lib.starts[c] + np.arange(lib.lengths[c])
+        speed = np.linalg.norm(lib.body_state(frames).lin_vel, axis=-1).max(-1)
+        moving = np.flatnonzero(speed >= STILL_SPEED)
+        out[c] = frames[-1] if len(moving) == 0 or moving[-1] == len(frames) - 1 else frames[moving[-1] + 1]
+    return out

@@ -318,7 +318,8 @@ class RecoveryVecEnv(ImitationVecEnv):
     fallen_seed (0), recovery_action_base ("reference", "pose", "target" or "pull": module docstring),
     getup_guide (None; get-up clips, e.g. "corpus:getup", shown as the goal of a body down:
     `smpl_envs.envs.getup_guide`), walk_guide (False; True: a walk to the goal shown to a standing
-    body far from it: `smpl_envs.envs.walk_guide`), guide_basin (0: off; a reward weight w, with
+    body far from it: `smpl_envs.envs.walk_guide`; "brisk": the same at a quicker pace,
+    `smpl_envs.motion.approach.PACES`; True is "steady"), guide_basin (0: off; a reward weight w, with
     getup_guide: w exp(-10 e) for a body shown a get-up, e its mean squared body coordinate error
     from the clip, a wide basin around the clip where the imitation terms are ~0);
     and Imitation's (motions: "stand", reward_weights, reward_scales,

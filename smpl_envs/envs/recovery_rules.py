@@ -140,10 +140,9 @@ class RecoveryController:
         self.showing = b.zeros(n, "bool")    # the last observation's goal is in the recovery form
         self.guide = None if getup_guide is None else _make_guide(getup_guide, env)
         self.getup_guide = getup_guide
-        if not isinstance(walk_guide, (bool, np.bool_)):
-            raise ValueError(f"walk_guide must be True or False, got {walk_guide!r}")
-        self.walk = _make_walk_guide(env) if walk_guide else None
-        self.walk_guide = bool(walk_guide)
+        pace = _walk_pace(walk_guide)
+        self.walk = _make_walk_guide(env, pace) if pace else None
+        self.walk_guide = walk_guide if pace == walk_guide else bool(pace)  # as given: a policy setting
         self.guide_basin = check_number("guide_basin", guide_basin)
         if self.guide_basin and self.guide is None:
             raise ValueError("guide_basin rewards nearing a get-up, so it needs getup_guide")
@@ -254,12 +253,17 @@ class RecoveryController:
             if w is not None:
                 w.stop(self.backend.nonzero(new))
         if w is not None:
-            busy = g.active if g is not None else self.backend.zeros(len(far), "bool")  # rising: not yet
+            busy = self.backend.zeros(len(far), "bool")
+            if g is not None:  # rising: not yet; the brisk walk takes over from a get-up shown standing still
+                busy = g.active & ~g.standing_still() if self.walk_guide == "brisk" else g.active
             lost = w.active & (w.age >= SETTLE_STEPS) & (w.distance(body) > RESTART_DISTANCE)
             # Back near the goal but facing away (only just recovered: within the grace, so a
             # tracked clip's own quick turns are left to the tracker): a turn on the spot.
             away = (self.grace > 0) & (abs(wrap_angle(heading_of(body.rot) - heading_of(ref_next.rot))) > TURN_AWAY)
-            w.start(~low & ~busy & (far | away) & (~w.active | lost), body, ref_next, far)
+            walk = ~low & ~busy & (far | away) & (~w.active | lost)
+            w.start(walk, body, ref_next, far)
+            if g is not None:
+                g.stop(self.backend.nonzero(walk & g.active))
         # Which guide each world's observation shows; the step's residual base and reward follow it
         # even when the clip ends in between (`advance`).
         self._shown = [self.backend.copy(guide.active) for guide in guides]
@@ -334,17 +338,31 @@ def _make_guide(motions, env) -> GetupGuide:
     return GetupGuide(lib, frames, env.num_envs, env.backend)
 
 
-def _make_walk_guide(env) -> WalkGuide:
-    lib = approach_library()
+def _walk_pace(walk_guide):
+    """`walk_guide` as given (False, or a pace of `smpl_envs.motion.approach.PACES`); True is
+    "steady", the pace of the first walk guide, so that policies trained with True keep it."""
+    from ..motion.approach import PACES
+
+    if walk_guide is True or walk_guide is np.True_:
+        return "steady"
+    if walk_guide is False or walk_guide is np.False_ or walk_guide is None:
+        return False
+    if not isinstance(walk_guide, str) or walk_guide not in PACES:
+        raise ValueError(f"walk_guide must be True, False or a pace of {sorted(PACES)}, got {walk_guide!r}")
+    return walk_guide
+
+
+def _make_walk_guide(env, pace: str) -> WalkGuide:
+    lib = approach_library(pace)
     frames = lib if env.backend.name == "cpu" else DeviceFrames(lib, env.backend.device)
     return WalkGuide(lib, frames, env.num_envs, env.backend)
 
 
-@functools.lru_cache(maxsize=1)
-def approach_library():
-    """The walk guide's clips (`smpl_envs.motion.approach.approach_set`), made once per process:
-    a few seconds of generation every recovery env would otherwise repeat."""
+@functools.lru_cache(maxsize=2)
+def approach_library(pace: str = "steady"):
+    """The walk guide's clips at `pace` (`smpl_envs.motion.approach.approach_set`), made once per
+    process: a few seconds of generation every recovery env would otherwise repeat."""
     from ..motion.approach import approach_set
     from ..motion.library import MotionLib
 
-    return MotionLib(approach_set())
+    return MotionLib(approach_set(pace))

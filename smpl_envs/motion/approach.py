@@ -11,14 +11,15 @@ Frames, axes and signs are procedural's: x forward, y left, z up.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from .motion import RawMotion
 from .procedural import DEG, _keys, _locomotion
 from .synthetic import WALK
 
-STAND = 0.6                 # s standing still at either end
-RAMP = 1.5                  # s from standing to the cruising speed, and back
+STAND = 0.6                 # s standing still at the end (and, at the steady pace, at the start)
 SLOW = 0.35                 # m/s while turning
 # rad/s. The tracker followed every clip of the grid from its first frame at 45 deg/s, and lost
 # left turns at 60 and 90 (19 % and 30 % of a fifth of the grid; runs/tracker_getup3 at 10M).
@@ -27,30 +28,55 @@ TURNS = np.arange(-150, 181, 30) * DEG
 DISTANCES = np.arange(0.5, 5.51, 0.5)
 
 
-def approach(turn: float, distance: float, name: str = "approach") -> RawMotion:
+@dataclasses.dataclass(frozen=True)
+class Pace:
+    """How an approach is timed: `wait` s standing and `ready` s walking slowly before the turn,
+    `ramp` s from SLOW to the cruising speed (and back to standing), cruising at `distance /
+    cruise_time` m/s within [SLOW, top_speed]."""
+
+    wait: float
+    ready: float
+    ramp: float
+    cruise_time: float
+    top_speed: float
+
+
+# "steady" is the walk guide's first set: a 3 m walk with a quarter turn is within 0.3 m of its
+# end only after 6.7 s, so a body that got up first has too little of PHC's 10 s left (far Succ-5s
+# 26 %, fallen+far 0.7 %: training/recovery_roll). "brisk" is there in 4.9 s: a fifth of a second
+# standing before the walk, shorter ramps, cruising at up to 1.5 m/s (the corpus' walks reach
+# 1.6 m/s). Ramps of 0.8-1.0 s slide the planted feet (the plausibility check refuses up to a
+# fifth of the grid); 1.2 s passes it everywhere.
+PACES = {"steady": Pace(wait=STAND, ready=0.6, ramp=1.5, cruise_time=3.0, top_speed=1.1),
+         "brisk": Pace(wait=0.2, ready=0.3, ramp=1.2, cruise_time=2.0, top_speed=1.5)}
+
+
+def approach(turn: float, distance: float, name: str = "approach", pace: str = "steady") -> RawMotion:
     """A walk from standing that turns by `turn` (rad, |turn| <= pi), walks on `distance` m (>= 0.3)
-    and stops (module docstring)."""
+    and stops, at a pace of PACES (module docstring)."""
+    pc = _pace(pace)
     if not (np.isfinite(turn) and abs(turn) <= np.pi + 1e-9):
         raise ValueError(f"approach: turn = {turn!r} must be an angle in [-pi, pi] radians")
     if not (np.isfinite(distance) and distance >= 0.3):
         raise ValueError(f"approach: distance = {distance!r} must be at least 0.3 m")
     # People turn first, in small slow steps, then walk on: the turn is taken at SLOW m/s (0.27
     # m/s^2 of lateral acceleration); short approaches never go faster than a few small steps need.
-    speed = float(np.clip(distance / 3.0, SLOW, 1.1))
+    speed = float(np.clip(distance / pc.cruise_time, SLOW, pc.top_speed))
     turning = abs(turn) / TURN_RATE
     sign = np.sign(turn)
-    t0 = STAND + 0.6                                  # walking slowly, ready to turn
+    t0 = pc.wait + pc.ready                           # walking slowly, ready to turn
     t1 = t0 + turning                                 # turned: speeding up
-    cruise = max(distance / speed - RAMP, 0.0)        # the two ramps walk about one ramp's time at speed
-    duration = t1 + 2 * RAMP + cruise + STAND
+    cruise = max(distance / speed - pc.ramp, 0.0)     # the two ramps walk about one ramp's time at speed
+    duration = t1 + 2 * pc.ramp + cruise + STAND
     edge = min(0.2, turning / 2)                      # min-jerk edges of the turn rate
     rate = abs(turn) / max(turning - edge, 1e-9)      # so that the turn integrates to `turn`
     t_turn = np.array([0.0, t0, t0 + edge, t1 - edge, t1 + 1e-6, duration + 10])
     yaw_rate = lambda t: _keys(t, t_turn, sign * rate * np.array([0, 0, 1, 1, 0, 0]))  # noqa: E731
-    t_speed = np.array([0.0, STAND, t0, t1, t1 + RAMP, t1 + RAMP + cruise, duration - STAND, duration + 10])
+    t_speed = np.array([0.0, pc.wait, t0, t1, t1 + pc.ramp, t1 + pc.ramp + cruise, duration - STAND, duration + 10])
     spd = lambda t: _keys(t, t_speed, np.array([0, 0, SLOW, SLOW, speed, speed, 0, 0]))  # noqa: E731
     # Stepping starts before the body moves (a foot that moved unlifted would slide) and stops as it halts.
-    t_act = np.array([0.0, STAND - 0.4, STAND + 0.2, duration - STAND - 0.7, duration - STAND + 0.1, duration + 10])
+    t_act = np.array([0.0, pc.wait - 0.4 if pc.wait > 0.4 else pc.wait / 2, pc.wait + 0.2, duration - STAND - 0.7, duration - STAND + 0.1,
+                      duration + 10])
     act = lambda t: _keys(t, t_act, np.array([0, 0, 1, 1, 0, 0]))  # noqa: E731
     stride = lambda t: np.minimum(np.clip((1.3 / np.maximum(spd(t), 0.3)) ** 0.35, 0.8, 1.4),  # noqa: E731
                                   0.55 / np.maximum(np.abs(yaw_rate(t)), 1e-3)).clip(0.55)
@@ -72,9 +98,16 @@ def turn_on_the_spot(turn: float, name: str = "turn") -> RawMotion:
                        stride=lambda t: np.full(np.shape(t), stride))
 
 
-def approach_set() -> list[RawMotion]:
-    """The guide's clips: every turn of TURNS with every distance of DISTANCES, then a turn on the
-    spot by each of TURNS (bar 0), which the guide shows a body near its goal but facing away."""
-    walks = [approach(float(a), float(d), f"approach_{round(a / DEG):+04d}_{d:.1f}") for a in TURNS for d in DISTANCES]
+def approach_set(pace: str = "steady") -> list[RawMotion]:
+    """The guide's clips: every turn of TURNS with every distance of DISTANCES at `pace`, then a
+    turn on the spot by each of TURNS (bar 0), which the guide shows a body near its goal but
+    facing away."""
+    walks = [approach(float(a), float(d), f"approach_{round(a / DEG):+04d}_{d:.1f}", pace) for a in TURNS for d in DISTANCES]
     turns = [turn_on_the_spot(float(a), f"turn_{round(a / DEG):+04d}") for a in TURNS if a != 0]
     return walks + turns
+
+
+def _pace(pace: str) -> Pace:
+    if pace not in PACES:
+        raise ValueError(f"approach: pace = {pace!r} must be one of {sorted(PACES)}")
+    return PACES[pace]

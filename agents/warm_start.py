@@ -118,7 +118,8 @@ def _check_settings(path: Path, source_env: dict, env_id: str | None, env_kwargs
         return
     src = policy_settings.trained_settings(src_id, dict(source_env.get("kwargs") or {}))
     dst = policy_settings.trained_settings(env_id, dict(env_kwargs or {}))
-    for name in (n for n in dst if n in src):
+    free = getattr(dst_cls, "goal_settings", ())  # which clips the goal shows: a fine-tune may change them
+    for name in (n for n in dst if n in src and n not in free):
         if src[name] != dst[name]:
             raise ValueError(f"--init {path}: it was trained with {name}={src[name]!r}, this run's env has "
                              f"{name}={dst[name]!r}; the copied weights would mean other actions (set "

@@ -119,3 +119,19 @@ def test_critic_warmup_trains_only_the_critic_until_its_step_count():
     assert any(not torch.equal(after[k], v) for k, v in before.items() if k.startswith("critic."))
     agent.learn(16, progress_bar=False, reset_num_timesteps=False)  # past it: the policy learns too
     assert any(not torch.equal(agent.policy.state_dict()[k], v) for k, v in before.items() if k.startswith("actor."))
+
+
+def test_a_recovery_fine_tune_may_change_its_guides_not_what_its_goal_means(tmp_path):
+    """The guides (`goal_settings`) only choose which clips the goal shows: a warm start may move
+    to others, as to other motions; switch_distance changes what the observation means."""
+    small = ["env.num_envs=1", "env.kwargs.fallen_cache_size=8", "agent.policy.kwargs.actor_hidden=[16]",
+             "agent.policy.kwargs.critic_hidden=[16]"]
+    source = new_agent(load_recipe("recovery_quick_ppo", small), verbose=0, device="cpu")
+    source.save(tmp_path / "quick.pt")
+    source.close()
+    init = [*small, f"agent.init={tmp_path / 'quick.pt'}"]
+    agent = new_agent(load_recipe("recovery_brisk_ppo", init), verbose=0, device="cpu")
+    assert agent.env_kwargs["walk_guide"] == "brisk"
+    agent.close()
+    with pytest.raises(ValueError, match=r"trained with switch_distance=0.5, this run's env has switch_distance=0.8"):
+        new_agent(load_recipe("recovery_brisk_ppo", [*init, "env.kwargs.switch_distance=0.8"]), verbose=0, device="cpu")

@@ -22,6 +22,7 @@ The task interface (all batched over worlds; `ids` are world indices):
 | `_markers(world)` | on render | [(positions (K, 3), rgba, radius)] drawn into the frame |
 | `evaluation` (class attribute) | `smpl_envs.evaluate`, `smpl-envs eval` | the task's evaluation protocol (`smpl_envs.evaluation`) |
 | `policy_kwargs` (class attribute) | `smpl_envs.evaluate`, `record`, `agents` loading | the kwargs that give a policy's actions and observations their meaning, each also an attribute holding the env's value: a policy runs only with those it was trained with (`smpl_envs.policy_settings`) |
+| `goal_settings` (class attribute, optional) | `agents.warm_start` | the policy settings that only choose which clips the goal shows (recovery's guides): a warm start may change them, as it may change the motions |
 
 `body` is the humanoid's `BodyState` in the world frame and `heading` its (N, 3, 3) heading
 rotation, computed once per step and shared by the hooks.

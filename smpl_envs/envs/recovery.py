@@ -331,6 +331,9 @@ class RecoveryVecEnv(ImitationVecEnv):
     # When and how the observation takes the recovery form, and what a residual action is added to then.
     policy_kwargs = (*ImitationVecEnv.policy_kwargs, "switch_distance", "clamp_distance", "recovery_action_base",
                      "getup_guide", "walk_guide")
+    # Of those, the ones that choose which clips the goal shows, not what an observation or action
+    # means: a warm start (`agents.warm_start`) may change them, as it may change the motions.
+    goal_settings = ("getup_guide", "walk_guide")
     switch_distance = property(lambda self: self.recovery.switch_distance)
     clamp_distance = property(lambda self: self.recovery.clamp_distance)
     recovery_action_base = property(lambda self: self.recovery.action_base)

@@ -125,7 +125,8 @@ def test_a_recovery_fine_tune_may_change_its_guides_not_what_its_goal_means(tmp_
     """The guides (`goal_settings`) only choose which clips the goal shows: a warm start may move
     to others, as to other motions; switch_distance changes what the observation means."""
     small = ["env.num_envs=1", "env.kwargs.fallen_cache_size=8", "agent.policy.kwargs.actor_hidden=[16]",
-             "agent.policy.kwargs.critic_hidden=[16]"]
+             "agent.policy.kwargs.critic_hidden=[16]", "env.kwargs.motions=stand",
+             "env.kwargs.getup_guide=null", "env.kwargs.guide_basin=0"]  # no corpus to build
     source = new_agent(load_recipe("recovery_quick_ppo", small), verbose=0, device="cpu")
     source.save(tmp_path / "quick.pt")
     source.close()

@@ -14,6 +14,10 @@ reference within `switch_distance`, and beyond it another walk from where the bo
 body more than `RESTART_DISTANCE` from its walk, `SETTLE_STEPS` or more after the start, is shown
 a new one; a body that falls is shown a get-up (with `getup_guide`), and after it a walk.
 
+`walk_guide="brisk"` shows the grid at its quicker pace (`smpl_envs.motion.approach.PACES`) and
+starts a walk as soon as a get-up's clip stands still (`GetupGuide.standing_still`) instead of at
+its last frame; True is "steady", whose policies keep the pace and the rule they were trained with.
+
 While guided, the goal, the residual base and the imitation terms of the reward are the walk's,
 as with a get-up; the point reward towards the task's reference stays, and the evaluation is
 unchanged.

@@ -44,8 +44,8 @@ class Pace:
 # "steady" is the walk guide's first set: a 3 m walk with a quarter turn is within 0.3 m of its
 # end only after 6.7 s, so a body that got up first has too little of PHC's 10 s left (far Succ-5s
 # 26 %, fallen+far 0.7 %: training/recovery_roll). "brisk" is there in 4.9 s: a fifth of a second
-# standing before the walk, shorter ramps, cruising at up to 1.5 m/s (the corpus' walks reach
-# 1.6 m/s). Ramps of 0.8-1.0 s slide the planted feet (the plausibility check refuses up to a
+# standing before the walk, shorter ramps, cruising at up to 1.5 m/s (the corpus' walks cruise at
+# 1.1 m/s, median, and a tenth of them faster than 1.6). Ramps of 0.8-1.0 s slide the planted feet (the plausibility check refuses up to a
 # fifth of the grid); 1.2 s passes it everywhere.
 PACES = {"steady": Pace(wait=STAND, ready=0.6, ramp=1.5, cruise_time=3.0, top_speed=1.1),
          "brisk": Pace(wait=0.2, ready=0.3, ramp=1.2, cruise_time=2.0, top_speed=1.5)}

@@ -43,12 +43,14 @@ class Pace:
 
 # "steady" is the walk guide's first set: a 3 m walk with a quarter turn is within 0.3 m of its
 # end only after 6.7 s, so a body that got up first has too little of PHC's 10 s left (far Succ-5s
-# 26 %, fallen+far 0.7 %: training/recovery_roll). "brisk" is there in 4.9 s: a fifth of a second
-# standing before the walk, shorter ramps, cruising at up to 1.5 m/s (the corpus' walks cruise at
-# 1.1 m/s, median, and a tenth of them faster than 1.6). Ramps of 0.8-1.0 s slide the planted feet (the plausibility check refuses up to a
-# fifth of the grid); 1.2 s passes it everywhere.
+# 26 %, fallen+far 0.7 %: training/recovery_roll). "brisk" is there in 5.6 s: a fifth of a second
+# standing before the walk, a shorter slow start, cruising at up to 1.3 m/s (the corpus' walks
+# cruise at 1.1 m/s, median, and a tenth of them faster than 1.6). Its ramps stay 1.5 s: at 1.2 s
+# and up to 1.5 m/s (4.9 s) the primitive trained on the steady walks fell at the stop, and 4M
+# samples of training on them made it fall in nearly every far trial (runs/recovery_brisk_fast);
+# ramps of 0.8-1.0 s also slide the clips' planted feet.
 PACES = {"steady": Pace(wait=STAND, ready=0.6, ramp=1.5, cruise_time=3.0, top_speed=1.1),
-         "brisk": Pace(wait=0.2, ready=0.3, ramp=1.2, cruise_time=2.0, top_speed=1.5)}
+         "brisk": Pace(wait=0.2, ready=0.3, ramp=1.5, cruise_time=2.5, top_speed=1.3)}
 
 
 def approach(turn: float, distance: float, name: str = "approach", pace: str = "steady") -> RawMotion:

@@ -187,9 +187,11 @@ def perpetual_env_kwargs(policy, env_kwargs: dict | None = None, override_settin
     bare = (trained_id or "").split(":", 1)[-1]
     if bare == "SMPL/Recovery-v0":
         # A recovery primitive on its own: Recovery-v0's policy settings split into the
-        # imitation env's (substeps, action_mode, residual_scale) and its recovery kwargs.
+        # imitation env's (substeps, action_mode, residual_scale) and its recovery kwargs (the
+        # rest: how the recovery goal is shown, the guides included).
         settings = policy_settings.trained_settings(bare, trained_kwargs)
-        recovery = {k: settings.pop(k) for k in ("switch_distance", "clamp_distance", "recovery_action_base")}
+        imitation = policy_settings.trained_settings(ENV_ID, {})
+        recovery = {k: settings.pop(k) for k in list(settings) if k not in imitation}
         return {**settings, "recovery": recovery, **env_kwargs}
     policy_settings.check_task(trained_id, ENV_ID)
     recovery = trained_kwargs.get("recovery")

@@ -18,7 +18,7 @@ import smpl_envs  # noqa: F401
 from agents.cli import main
 from agents.pmcp import Pipeline, check_pipeline, hard_clips, load_pipeline, settings_for, success_on
 from agents.recipes import RecipeError, find_checkpoint
-from smpl_envs.perpetual import chained_reference, count_losses, heading
+from smpl_envs.perpetual import chained_reference, count_losses, heading, perpetual_env_kwargs
 
 TINY_TRAIN = ["env.num_envs=2", "agent.hyperparams.n_steps=16", "agent.hyperparams.batch_size=32",
               "agent.hyperparams.n_epochs=1", "eval.every=0", "video.steps=0", "eval.num_envs=2"]
@@ -122,6 +122,10 @@ def test_a_recovery_policy_s_guides_travel_between_imitation_and_recovery():
         "action_mode": "residual", "residual_scale": 0.25, "getup_guide": "corpus:getup", "walk_guide": True})
     back = settings_for(primitive, "SMPL/Imitation-v0")
     assert "getup_guide" not in back and back["residual_scale"] == 0.25
+    # The perpetual test of a recovery primitive on its own: its guides go in the recovery dict.
+    kwargs = perpetual_env_kwargs(primitive)
+    assert kwargs["recovery"]["walk_guide"] is True and kwargs["recovery"]["getup_guide"] == "corpus:getup"
+    assert "walk_guide" not in kwargs and kwargs["residual_scale"] == 0.25
 
 
 def test_a_run_directory_keeps_its_recipe(tmp_path):

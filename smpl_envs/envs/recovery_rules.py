@@ -14,6 +14,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from ..features import BodyState, xp
+from ..motion.approach import PACES
 from ..motion.library import DeviceFrames, load_motions
 from .base import check_number, check_range
 from .fallen import FallenStates
@@ -142,7 +143,8 @@ class RecoveryController:
         self.getup_guide = getup_guide
         pace = _walk_pace(walk_guide)
         self.walk = _make_walk_guide(env, pace) if pace else None
-        self.walk_guide = walk_guide if pace == walk_guide else bool(pace)  # as given: a policy setting
+        self.walk_guide = walk_guide if isinstance(walk_guide, str) else bool(pace)  # as given: a policy setting
+        self._walk_early = bool(pace) and PACES[pace].early
         self.guide_basin = check_number("guide_basin", guide_basin)
         if self.guide_basin and self.guide is None:
             raise ValueError("guide_basin rewards nearing a get-up, so it needs getup_guide")
@@ -254,8 +256,8 @@ class RecoveryController:
                 w.stop(self.backend.nonzero(new))
         if w is not None:
             busy = self.backend.zeros(len(far), "bool")
-            if g is not None:  # rising: not yet; the brisk walk takes over from a get-up shown standing still
-                busy = g.active & ~g.standing_still() if self.walk_guide == "brisk" else g.active
+            if g is not None:  # rising: not yet; an early pace takes over from a get-up shown standing still
+                busy = g.active & ~g.standing_still() if self._walk_early else g.active
             lost = w.active & (w.age >= SETTLE_STEPS) & (w.distance(body) > RESTART_DISTANCE)
             # Back near the goal but facing away (only just recovered: within the grace, so a
             # tracked clip's own quick turns are left to the tracker): a turn on the spot.
@@ -341,8 +343,6 @@ def _make_guide(motions, env) -> GetupGuide:
 def _walk_pace(walk_guide):
     """`walk_guide` as given (False, or a pace of `smpl_envs.motion.approach.PACES`); True is
     "steady", the pace of the first walk guide, so that policies trained with True keep it."""
-    from ..motion.approach import PACES
-
     if walk_guide is True or walk_guide is np.True_:
         return "steady"
     if walk_guide is False or walk_guide is np.False_ or walk_guide is None:

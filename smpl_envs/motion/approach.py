@@ -32,13 +32,15 @@ DISTANCES = np.arange(0.5, 5.51, 0.5)
 class Pace:
     """How an approach is timed: `wait` s standing and `ready` s walking slowly before the turn,
     `ramp` s from SLOW to the cruising speed (and back to standing), cruising at `distance /
-    cruise_time` m/s within [SLOW, top_speed]."""
+    cruise_time` m/s within [SLOW, top_speed]; `early` (the walk guide's rule): a walk after a
+    get-up sets off as soon as the get-up's clip stands still, not at its last frame."""
 
     wait: float
     ready: float
     ramp: float
     cruise_time: float
     top_speed: float
+    early: bool = False
 
 
 # "steady" is the walk guide's first set: a 3 m walk with a quarter turn is within 0.3 m of its
@@ -50,7 +52,7 @@ class Pace:
 # samples of training on them made it fall in nearly every far trial (runs/recovery_brisk_fast);
 # ramps of 0.8-1.0 s also slide the clips' planted feet.
 PACES = {"steady": Pace(wait=STAND, ready=0.6, ramp=1.5, cruise_time=3.0, top_speed=1.1),
-         "brisk": Pace(wait=0.2, ready=0.3, ramp=1.5, cruise_time=2.5, top_speed=1.3)}
+         "brisk": Pace(wait=0.2, ready=0.3, ramp=1.5, cruise_time=2.5, top_speed=1.3, early=True)}
 
 
 def approach(turn: float, distance: float, name: str = "approach", pace: str = "steady") -> RawMotion:

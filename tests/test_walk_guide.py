@@ -12,9 +12,9 @@ import smpl_envs  # noqa: F401 (registers the ids)
 from smpl_envs.envs.getup_guide import STILL_SPEED, still_from
 from smpl_envs.envs.recovery import RecoveryVecEnv
 from smpl_envs.envs.recovery_rules import approach_library
-from smpl_envs.envs.walk_guide import TURN_AWAY, heading_of, wrap_angle
+from smpl_envs.envs.walk_guide import MAX_SHIFT, TURN_AWAY, heading_of, wrap_angle
 from smpl_envs.motion import MotionLib
-from smpl_envs.motion.approach import DEG, PACES, approach, turn_on_the_spot
+from smpl_envs.motion.approach import DEG, PACES, STEP_DISTANCES, TURNS, approach, step_to, turn_on_the_spot
 from smpl_envs.motion.getup import getup
 from smpl_envs.motion.plausibility import check_motion
 
@@ -162,4 +162,125 @@ def test_the_brisk_walk_takes_over_from_a_getup_shown_standing_still(pace):
         assert rec.walk.active.tolist() == [False, True] and g.active.tolist() == [True, False]
     else:  # the steady guide waits for the get-up's last frame, as policies trained with it expect
         assert not rec.walk.active.any() and g.active.all()
+    env.close()
+
+
+# ------------------------------------------------------------------------- the exact rule
+def test_steps_move_the_body_where_asked_without_turning():
+    for bearing, distance in [(0.0, 0.5), (90 * DEG, 1.1), (180 * DEG, 1.4), (-120 * DEG, 0.8)]:
+        raw = step_to(bearing, distance)
+        assert check_motion(raw).ok
+        lib = MotionLib([raw])
+        ends = lib.body_state(np.array([0, lib.lengths[0] - 1]))
+        moved = ends.pos[1, 0, :2] - ends.pos[0, 0, :2]
+        h = heading_of(ends.rot)
+        assert abs(np.linalg.norm(moved) - distance) < 0.1
+        assert abs(wrap_angle(np.arctan2(moved[1], moved[0]) - h[0] - bearing)) < 10 * DEG
+        assert abs(wrap_angle(h[1] - h[0])) < 5 * DEG  # no turn
+        assert np.linalg.norm(ends.lin_vel[:, 0], axis=-1).max() < 0.05
+    for bad in (0.3, 2.5, np.nan):
+        with pytest.raises(ValueError, match="step_to: distance"):
+            step_to(0.0, bad)
+    names = lambda pace: [n for n in approach_library(pace).names if n.startswith("step")]  # noqa: E731
+    assert not names("brisk") and len(names("brisk_exact")) == len(TURNS) * len(STEP_DISTANCES)
+
+
+def _exact_env(n, **kwargs):
+    return _env(n=n, walk_guide="brisk_exact", **kwargs)
+
+
+def test_under_the_exact_rule_a_walk_ends_on_the_goal_and_its_velocities_match_its_path():
+    ends = {}
+    for pace in ("brisk", "brisk_exact"):
+        env = _env(n=6, walk_guide=pace)
+        u = env.unwrapped
+        env.reset(seed=3)
+        w, goal = u.recovery.walk, u.ref.current().pos[:, 0, :2]
+        ends[pace] = np.array([np.linalg.norm(_end(w, k)[0][:2] - goal[k]) for k in range(6)])
+        if pace == "brisk_exact":
+            assert np.abs(w.shift).max() > 0.01 and np.linalg.norm(w.shift, axis=-1).max() <= MAX_SHIFT + 1e-9
+            # The shown state's velocities are those of its positions (finite differences at 30 fps).
+            w.frame[:] = (w.begin + w.end) // 2
+            a = w.current()
+            w.frame[:] += 1
+            b = w.current()
+            mid = 0.5 * (a.lin_vel + b.lin_vel)[:, 0, :2]
+            np.testing.assert_allclose((b.pos - a.pos)[:, 0, :2] * 30, mid, atol=0.05)
+        env.close()
+    assert ends["brisk_exact"].max() < 0.02 < ends["brisk"].max()
+
+
+def _place_near(u, offsets):
+    """The reference pose, its pelvis moved by `offsets` (n, 2): bodies standing near their goal."""
+    ref = u.ref.next()
+    shift = np.concatenate([offsets, np.zeros((len(offsets), 1))], -1)[:, None]
+    return type(ref)(pos=ref.pos + shift, rot=ref.rot, lin_vel=ref.lin_vel, ang_vel=ref.ang_vel,
+                     dof_pos=ref.dof_pos, dof_vel=ref.dof_vel), ref
+
+
+def test_under_the_exact_rule_a_body_near_but_off_the_spot_steps_onto_it():
+    offsets = np.array([[0.1, 0.0], [0.0, 0.4], [-0.35, 0.2]])
+    guided = {}
+    for pace in ("brisk", "brisk_exact"):
+        env = _env(n=3, walk_guide=pace, starts={"reference": 1.0})
+        u = env.unwrapped
+        env.reset(seed=0)
+        rec = u.recovery
+        rec.grace[:] = 10  # just recovered
+        body, ref = _place_near(u, offsets)
+        rec.goal_reference(body, ref, np.random.default_rng(0))
+        guided[pace] = rec.guided.tolist()
+        if pace == "brisk_exact":
+            for world in (1, 2):
+                end, h = _end(rec.walk, world)
+                assert np.linalg.norm(end[:2] - ref.pos[world, 0, :2]) < 0.02  # on the spot
+                assert abs(wrap_angle(h - heading_of(body.rot[world:world + 1])[0])) < 20 * DEG  # by steps, not a turn
+        env.close()
+    assert guided == {"brisk": [False, False, False], "brisk_exact": [False, True, True]}
+
+
+def test_under_the_exact_rule_a_goal_close_behind_is_a_step_back_not_a_turn_and_a_walk():
+    lengths = {}
+    for pace in ("brisk", "brisk_exact"):
+        env = _env(n=1, walk_guide=pace, starts={"reference": 1.0})
+        u = env.unwrapped
+        env.reset(seed=0)
+        ref = u.ref.next()
+        back = -0.9 * np.array([np.cos(heading_of(ref.rot)[0]), np.sin(heading_of(ref.rot)[0])])
+        body, ref = _place_near(u, -back[None])  # the goal 0.9 m behind the body
+        u.recovery.goal_reference(body, ref, np.random.default_rng(0))
+        w = u.recovery.walk
+        assert w.active.all()
+        lengths[pace] = int(w.end[0] - w.begin[0])
+        _, h = _end(w, 0)
+        turned = abs(wrap_angle(h - heading_of(body.rot)[0]))
+        assert (turned < 20 * DEG) if pace == "brisk_exact" else (turned > 120 * DEG)
+        env.close()
+    assert lengths["brisk_exact"] < 0.6 * lengths["brisk"]
+
+
+def test_the_exact_walk_guide_shows_the_same_clips_in_torch_as_in_numpy():
+    # The MuJoCo Warp backend runs the guide on torch tensors; the same starts give the same frames.
+    import torch
+
+    from smpl_envs.backend import TorchBackend
+    from smpl_envs.features import BodyState
+    from smpl_envs.envs.walk_guide import WalkGuide
+    from smpl_envs.motion.library import DeviceFrames
+
+    env = _exact_env(4)
+    u = env.unwrapped
+    env.reset(seed=5)
+    body, goal, w = u.sim.bodies, u.ref.next(), u.recovery.walk
+    tb = TorchBackend("cpu")
+    tw = WalkGuide(w.lib, DeviceFrames(w.lib, "cpu"), 4, tb, exact=True)
+    fields = ("pos", "rot", "lin_vel", "ang_vel", "dof_pos", "dof_vel")
+    as_torch = lambda s: BodyState(**{f: torch.as_tensor(np.asarray(getattr(s, f)), dtype=torch.float32) for f in fields})  # noqa: E731
+    far = np.array([True, True, False, True])
+    w.start(np.ones(4, bool), body, goal, far)
+    tw.start(torch.ones(4, dtype=torch.bool), as_torch(body), as_torch(goal), torch.as_tensor(far))
+    for step in range(40):
+        np.testing.assert_allclose(tw.next().pos.numpy(), w.next().pos, atol=2e-3)
+        np.testing.assert_allclose(tw.next().lin_vel.numpy(), w.next().lin_vel, atol=2e-2)
+        w.advance(), tw.advance()
     env.close()

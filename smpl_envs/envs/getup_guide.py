@@ -69,6 +69,11 @@ class ClipGuide:
         self.age = b.zeros(num_worlds, "int")
         self.cos, self.sin = b.zeros(num_worlds) + 1.0, b.zeros(num_worlds)
         self.offset = b.zeros((num_worlds, 3))
+        # A ground-plane shift each world's clip takes on over its frames (smoothstep from none at
+        # the first to all of it at the last): where a clip's end should land elsewhere than the
+        # clip puts it (the walk guide's exact rule); zero unless a guide sets it.
+        self.begin = b.zeros(num_worlds, "int")
+        self.shift = b.zeros((num_worlds, 2))
 
     def _place(self, ids, clip, angle, pelvis_xy) -> None:
         """Worlds `ids` start clips `clip`, turned by `angle` about z, their first frame's pelvis
@@ -80,8 +85,9 @@ class ClipGuide:
         self.offset[ids, :2] = pelvis_xy - turned
         self.offset[ids, 2] = 0.0
         self.cos[ids], self.sin[ids] = c, s
-        self.frame[ids] = self.frames.starts[clip]
+        self.frame[ids] = self.begin[ids] = self.frames.starts[clip]
         self.end[ids] = self.frames.starts[clip] + self.frames.lengths[clip] - 1
+        self.shift[ids] = 0.0
         self.age[ids] = 0
         self.active[ids] = True
 
@@ -107,7 +113,24 @@ class ClipGuide:
         return xp(d).sqrt((d * d).sum(-1)).mean(-1)
 
     def _at(self, frames) -> BodyState:
-        return turn(self.frames.body_state(frames), self.cos, self.sin, self.offset)
+        state = turn(self.frames.body_state(frames), self.cos, self.sin, self.offset)
+        if not bool((self.shift != 0).any()):
+            return state
+        span = (self.end - self.begin).clip(min=1)
+        u = ((frames - self.begin) / span).clip(0.0, 1.0)
+        w = u * u * (3.0 - 2.0 * u)
+        rate = 6.0 * u * (1.0 - u) * self.lib.fps / span  # dw/dt, 1/s
+        m = xp(state.pos)
+        pad = m.zeros_like(self.shift[:, :1])
+        shift = m.concatenate([self.shift, pad], -1)[:, None]   # (N, 1, 3)
+        return BodyState(pos=state.pos + w[:, None, None] * shift, rot=state.rot,
+                         lin_vel=state.lin_vel + rate[:, None, None] * shift, ang_vel=state.ang_vel,
+                         dof_pos=state.dof_pos, dof_vel=state.dof_vel)
+
+    def end_pelvis(self, ids):
+        """(n, 2) where the clips of worlds `ids` put the pelvis at their last frame, unshifted."""
+        last = self.frames.body_state(self.end[ids])
+        return turn(last, self.cos[ids], self.sin[ids], self.offset[ids]).pos[:, 0, :2]
 
     def current(self) -> BodyState:
         return self._at(self.frame)

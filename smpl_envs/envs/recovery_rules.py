@@ -19,7 +19,7 @@ from ..motion.library import DeviceFrames, load_motions
 from .base import check_number, check_range
 from .fallen import FallenStates
 from .getup_guide import DOWN_HEIGHT, RESTART_DISTANCE, SETTLE_STEPS, GetupGuide
-from .walk_guide import TURN_AWAY, WalkGuide, heading_of, wrap_angle
+from .walk_guide import OFF_SPOT, TURN_AWAY, WalkGuide, heading_of, wrap_angle
 
 START_KINDS = ("reference", "fallen", "far", "fallen+far")
 DEFAULT_STARTS = {"reference": 0.6, "fallen": 0.3, "far": 0.05, "fallen+far": 0.05}
@@ -261,9 +261,14 @@ class RecoveryController:
             lost = w.active & (w.age >= SETTLE_STEPS) & (w.distance(body) > RESTART_DISTANCE)
             # Back near the goal but facing away (only just recovered: within the grace, so a
             # tracked clip's own quick turns are left to the tracker): a turn on the spot.
-            away = (self.grace > 0) & (abs(wrap_angle(heading_of(body.rot) - heading_of(ref_next.rot))) > TURN_AWAY)
+            away = abs(wrap_angle(heading_of(body.rot) - heading_of(ref_next.rot))) > TURN_AWAY
+            move = far
+            if w.exact:  # or off the spot: a tracker shown a standing reference half a metre away stands
+                off = (root_distance(body, ref_next) > OFF_SPOT) & (self.grace > 0)
+                away, move = away | off, far | off
+            away &= self.grace > 0
             walk = ~low & ~busy & (far | away) & (~w.active | lost)
-            w.start(walk, body, ref_next, far)
+            w.start(walk, body, ref_next, move)
             if g is not None:
                 g.stop(self.backend.nonzero(walk & g.active))
         # Which guide each world's observation shows; the step's residual base and reward follow it
@@ -355,7 +360,7 @@ def _walk_pace(walk_guide):
 def _make_walk_guide(env, pace: str) -> WalkGuide:
     lib = approach_library(pace)
     frames = lib if env.backend.name == "cpu" else DeviceFrames(lib, env.backend.device)
-    return WalkGuide(lib, frames, env.num_envs, env.backend)
+    return WalkGuide(lib, frames, env.num_envs, env.backend, exact=PACES[pace].exact)
 
 
 @functools.lru_cache(maxsize=2)

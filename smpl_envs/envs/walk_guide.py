@@ -12,11 +12,21 @@ heading and turned by the few degrees that put its end on the goal's bearing. It
 control rate to its last frame (standing still); then the goal is the task's again, the
 reference within `switch_distance`, and beyond it another walk from where the body stands. A
 body more than `RESTART_DISTANCE` from its walk, `SETTLE_STEPS` or more after the start, is shown
-a new one; a body that falls is shown a get-up (with `getup_guide`), and after it a walk.
+a new one; a body that falls is shown a get-up (with `getup_guide`), and after it a walk. A body
+back near its goal (within the grace that follows recovering) but facing more than `TURN_AWAY`
+away is shown a turn on the spot to the goal's heading.
 
-`walk_guide="brisk"` shows the grid at its quicker pace (`smpl_envs.motion.approach.PACES`) and
-starts a walk as soon as a get-up's clip stands still (`GetupGuide.standing_still`) instead of at
-its last frame; True is "steady", whose policies keep the pace and the rule they were trained with.
+`walk_guide` names a pace of `smpl_envs.motion.approach.PACES` (True is "steady", whose policies
+keep the pace and the rules they were trained with):
+
+* "brisk" shows the grid at a quicker pace and starts a walk as soon as a get-up's clip stands
+  still (`GetupGuide.standing_still`) instead of at its last frame (`Pace.early`).
+* "brisk_exact" adds the exact rule (`Pace.exact`): a clip's end is moved onto the goal's pelvis
+  over its frames (at most `MAX_SHIFT`), where the grid alone ends up to ~0.3 m short; steps
+  without turning (sideways, backwards: `approach.step_to`) join the grid, and the choice weighs
+  each clip's length (`TIME_COST`), so a goal close behind a body is a step back, not a turn and
+  a walk; and a body back near its goal with its pelvis more than `OFF_SPOT` off is led onto the
+  spot as a far one is.
 
 While guided, the goal, the residual base and the imitation terms of the reward are the walk's,
 as with a get-up; the point reward towards the task's reference stays, and the evaluation is
@@ -36,6 +46,13 @@ from .getup_guide import ClipGuide
 BEARING_COST = 1.0
 TURN_REACH = 0.3     # m: a clip that ends nearer than this to where it starts is a turn on the spot
 TURN_AWAY = np.radians(30)  # a standing body near its goal facing further away than this is shown a turn
+# The exact rule (Pace.exact): a standing body near its goal with its pelvis further off than this
+# (m) is shown a turn that ends on the spot; a clip's end moves at most MAX_SHIFT (m) to get there.
+OFF_SPOT = 0.25
+MAX_SHIFT = 0.6
+# m of cost per second a clip lasts, under the exact rule: with it, a goal 0.8 m behind a body is
+# a 3.4 s step back, not a 7 s turn and walk (the step clips are there under that rule only).
+TIME_COST = 0.1
 
 
 def wrap_angle(a):
@@ -44,11 +61,12 @@ def wrap_angle(a):
 
 
 class WalkGuide(ClipGuide):
-    """Walks to the goal for standing bodies far from it, and turns on the spot for standing
-    bodies near it that face away (module docstring)."""
+    """Walks (or steps) to the goal for standing bodies far from it, and turns on the spot for
+    standing bodies near it that face away (module docstring)."""
 
-    def __init__(self, lib, frames, num_worlds: int, backend):
+    def __init__(self, lib, frames, num_worlds: int, backend, exact: bool = False):
         super().__init__(lib, frames, num_worlds, backend)
+        self.exact = bool(exact)
         first, last = self._first, lib.body_state(lib.starts + lib.lengths - 1)
         h0, h1 = heading_of(first.rot), heading_of(last.rot)
         d = last.pos[:, 0, :2] - first.pos[:, 0, :2]
@@ -59,12 +77,13 @@ class WalkGuide(ClipGuide):
         self._bearing = b.asarray(wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - h0))  # ... in which direction
         self._turn = b.asarray(wrap_angle(h1 - h0))  # ... and how far round it turns
         # A clip for the other kind of world costs this much more: never chosen.
-        self._walk_only = b.asarray(np.where(reach < TURN_REACH, 1e6, 0.0))
+        self._walk_only = b.asarray(np.where(reach < TURN_REACH, 1e6, 0.0) + (TIME_COST * lib.durations if exact else 0.0))
         self._turn_only = b.asarray(np.where(reach < TURN_REACH, 0.0, 1e6))
 
     def start(self, mask, body: BodyState, goal: BodyState, far) -> None:
         """Worlds in `mask` start the clip that suits them best: those `far` from the `goal`'s
-        pelvis a walk to it, the others a turn to its heading."""
+        pelvis (or, under the exact rule, off its spot) a walk or steps to it, the others a turn
+        to its heading."""
         b = self.backend
         ids = b.nonzero(mask)
         if len(ids) == 0:
@@ -83,6 +102,10 @@ class WalkGuide(ClipGuide):
         rows = b.arange(len(ids))
         extra = b.xp.where(far[ids], off[rows, clip], turn_off[rows, clip])
         self._place(ids, clip, heading + extra - self._start_heading[clip], body.pos[ids, 0, :2])
+        if self.exact:
+            shift = goal.pos[ids, 0, :2] - self.end_pelvis(ids)
+            size = (shift * shift).sum(-1, keepdims=True) ** 0.5
+            self.shift[ids] = shift * (MAX_SHIFT / size.clip(min=MAX_SHIFT))
 
 
 def heading_of(rot):

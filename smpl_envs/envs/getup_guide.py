@@ -74,6 +74,7 @@ class ClipGuide:
         # clip puts it (the walk guide's exact rule); zero unless a guide sets it.
         self.begin = b.zeros(num_worlds, "int")
         self.shift = b.zeros((num_worlds, 2))
+        self._shifting = False  # host flag: no shift was ever set (no device sync to find out)
 
     def _place(self, ids, clip, angle, pelvis_xy) -> None:
         """Worlds `ids` start clips `clip`, turned by `angle` about z, their first frame's pelvis
@@ -114,7 +115,7 @@ class ClipGuide:
 
     def _at(self, frames) -> BodyState:
         state = turn(self.frames.body_state(frames), self.cos, self.sin, self.offset)
-        if not bool((self.shift != 0).any()):
+        if not self._shifting:
             return state
         span = (self.end - self.begin).clip(min=1)
         u = ((frames - self.begin) / span).clip(0.0, 1.0)
@@ -126,6 +127,11 @@ class ClipGuide:
         return BodyState(pos=state.pos + w[:, None, None] * shift, rot=state.rot,
                          lin_vel=state.lin_vel + rate[:, None, None] * shift, ang_vel=state.ang_vel,
                          dof_pos=state.dof_pos, dof_vel=state.dof_vel)
+
+    def set_shift(self, ids, shift) -> None:
+        """Worlds `ids`' clips end `shift` (n, 2) m away from where they would (module docstring)."""
+        self.shift[ids] = shift
+        self._shifting = True
 
     def end_pelvis(self, ids):
         """(n, 2) where the clips of worlds `ids` put the pelvis at their last frame, unshifted."""

@@ -47,7 +47,7 @@ BEARING_COST = 1.0
 TURN_REACH = 0.3     # m: a clip that ends nearer than this to where it starts is a turn on the spot
 TURN_AWAY = np.radians(30)  # a standing body near its goal facing further away than this is shown a turn
 # The exact rule (Pace.exact): a standing body near its goal with its pelvis further off than this
-# (m) is shown a turn that ends on the spot; a clip's end moves at most MAX_SHIFT (m) to get there.
+# (m) is led onto the spot; a clip's end moves at most MAX_SHIFT (m) to land on the goal.
 OFF_SPOT = 0.25
 MAX_SHIFT = 0.6
 # m of cost per second a clip lasts, under the exact rule: with it, a goal 0.8 m behind a body is
@@ -76,8 +76,9 @@ class WalkGuide(ClipGuide):
         self._reach = b.asarray(reach)  # (C,) how far each clip ends from where it starts ...
         self._bearing = b.asarray(wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - h0))  # ... in which direction
         self._turn = b.asarray(wrap_angle(h1 - h0))  # ... and how far round it turns
-        # A clip for the other kind of world costs this much more: never chosen.
-        self._walk_only = b.asarray(np.where(reach < TURN_REACH, 1e6, 0.0) + (TIME_COST * lib.durations if exact else 0.0))
+        # A clip for the other kind of world costs this much more: never chosen. Under the exact
+        # rule a walk's (or step's) length costs too.
+        self._walk_cost = b.asarray(np.where(reach < TURN_REACH, 1e6, 0.0) + (TIME_COST * lib.durations if exact else 0.0))
         self._turn_only = b.asarray(np.where(reach < TURN_REACH, 0.0, 1e6))
 
     def start(self, mask, body: BodyState, goal: BodyState, far) -> None:
@@ -93,7 +94,7 @@ class WalkGuide(ClipGuide):
         reach = (rel * rel).sum(-1) ** 0.5
         bearing = wrap_angle(b.xp.arctan2(rel[:, 1], rel[:, 0]) - heading)
         off = wrap_angle(bearing[:, None] - self._bearing[None])  # (n, C): the extra turn each walk needs
-        walk = abs(self._reach[None] - reach[:, None]) + BEARING_COST * abs(off) + self._walk_only[None]
+        walk = abs(self._reach[None] - reach[:, None]) + BEARING_COST * abs(off) + self._walk_cost[None]
         need = wrap_angle(heading_of(goal.rot[ids]) - heading)
         turn_off = wrap_angle(need[:, None] - self._turn[None])  # (n, C): what each turn leaves to turn
         spin = abs(turn_off) + self._turn_only[None]
@@ -105,7 +106,7 @@ class WalkGuide(ClipGuide):
         if self.exact:
             shift = goal.pos[ids, 0, :2] - self.end_pelvis(ids)
             size = (shift * shift).sum(-1, keepdims=True) ** 0.5
-            self.shift[ids] = shift * (MAX_SHIFT / size.clip(min=MAX_SHIFT))
+            self.set_shift(ids, shift * (MAX_SHIFT / size.clip(min=MAX_SHIFT)))
 
 
 def heading_of(rot):

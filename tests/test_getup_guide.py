@@ -117,6 +117,26 @@ def test_a_getup_plays_to_its_last_frame_and_a_body_still_down_starts_another(gu
     assert frames[-1] in guide_clips.starts.tolist() and bool(g.active[0])
 
 
+def test_guide_restart_is_the_distance_at_which_a_lagging_body_gets_a_new_getup(guide_clips):
+    restarted = {}
+    for restart in (0.3, 0.6):
+        env = _env(guide_clips, n=1, guide_restart=restart)
+        u = env.unwrapped
+        env.reset(seed=0)
+        g = u.recovery.guide
+        assert u.guide_restart == restart
+        for _ in range(SETTLE_STEPS + 5):  # PD alone: the body lies while the clip rises
+            env.step(np.zeros((1, 69), np.float32))
+        lag = float(g.distance(u.sim.bodies)[0])
+        restarted[restart] = int(g.age[0]) < SETTLE_STEPS + 5
+        env.close()
+    assert 0.3 < lag < 0.6 or restarted[0.6]  # the case the setting decides (else both restart)
+    assert restarted == {0.3: True, 0.6: lag > 0.6}
+    with pytest.raises(ValueError, match="guide_restart"):
+        _env(guide_clips, guide_restart=0.0)
+    assert "guide_restart" in RecoveryVecEnv.policy_kwargs and "guide_restart" in RecoveryVecEnv.goal_settings
+
+
 def test_bad_getup_guides_are_named(guide_clips):
     only_front = MotionLib([getup("front", tempo=1.3, name="a"), getup("front", tempo=1.2, name="b")])
     with pytest.raises(ValueError, match="getup_guide: the get-up clips must start both on the front and on the back"):

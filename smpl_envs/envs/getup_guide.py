@@ -10,8 +10,9 @@ starts the way the body lies (on the front or the back: the sign of the pelvis' 
 height), turned about the vertical so that its head points where the body's head does, and
 placed under the body's pelvis. It plays at the control rate until its last frame (the body
 standing still); then the goal is the task's again: the reference within `switch_distance`, the
-recovery form beyond. A guided body that ends up more than `RESTART_DISTANCE` from its get-up
-while down, `SETTLE_STEPS` or more after the start, is shown a new one.
+recovery form beyond. A guided body that ends up more than the recovery option `guide_restart`
+(`RESTART_DISTANCE` by default) from its get-up while down, `SETTLE_STEPS` or more after the
+start, is shown a new one.
 
 While guided, the goal, the residual actions' base and the imitation terms of the reward are the
 get-up's (as when tracking); the episode does not terminate; the point reward towards the task's
@@ -29,7 +30,7 @@ from ..features import BodyState, xp
 from ..humanoid.skeleton import BODY_NAMES
 
 DOWN_HEIGHT = 0.4       # m: a pelvis lower than this is on the floor (hands and knees: 0.4)
-RESTART_DISTANCE = 0.6  # m of mean body distance from the get-up at which a body down starts again
+RESTART_DISTANCE = 0.6  # m of mean body distance from its clip at which a guided body starts a new one (default)
 SETTLE_STEPS = 30       # steps after a start before a restart may come (the body settles into the lie)
 STILL_SPEED = 0.05      # m/s: a clip whose every body moves slower than this from a frame on stands still
 HEAD = BODY_NAMES.index("Head")

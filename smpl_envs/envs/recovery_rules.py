@@ -112,7 +112,7 @@ class RecoveryController:
                  point_scale=POINT_SCALE, point_clip=POINT_CLIP, recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT,
                  grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
                  fallen_cache_size=128, fallen_seed=0, recovery_action_base="reference", getup_guide=None,
-                 walk_guide=False, guide_basin=0.0):
+                 walk_guide=False, guide_basin=0.0, guide_restart=RESTART_DISTANCE):
         self.p = check_starts({"reference": 1.0} if starts is None else starts)
         if recovery_action_base not in ACTION_BASES:
             raise ValueError(f"recovery_action_base must be one of {ACTION_BASES}, got {recovery_action_base!r}")
@@ -146,6 +146,7 @@ class RecoveryController:
         self.walk_guide = walk_guide if isinstance(walk_guide, str) else bool(pace)  # as given: a policy setting
         self._walk_early = bool(pace) and PACES[pace].early
         self.guide_basin = check_number("guide_basin", guide_basin)
+        self.guide_restart = check_number("guide_restart", guide_restart, positive=True)
         if self.guide_basin and self.guide is None:
             raise ValueError("guide_basin rewards nearing a get-up, so it needs getup_guide")
         self._guides = tuple(g for g in (self.guide, self.walk) if g is not None)  # fixed from here on
@@ -249,7 +250,7 @@ class RecoveryController:
         down = far & low
         g, w = self.guide, self.walk
         if g is not None and down.any():
-            lost = g.active & (g.age >= SETTLE_STEPS) & (g.distance(body) > RESTART_DISTANCE)
+            lost = g.active & (g.age >= SETTLE_STEPS) & (g.distance(body) > self.guide_restart)
             new = down & (~g.active | lost)  # a body that fell while walking too
             g.start(new, body, rng)
             if w is not None:
@@ -258,7 +259,7 @@ class RecoveryController:
             busy = self.backend.zeros(len(far), "bool")
             if g is not None:  # rising: not yet; an early pace takes over from a get-up shown standing still
                 busy = g.active & ~g.standing_still() if self._walk_early else g.active
-            lost = w.active & (w.age >= SETTLE_STEPS) & (w.distance(body) > RESTART_DISTANCE)
+            lost = w.active & (w.age >= SETTLE_STEPS) & (w.distance(body) > self.guide_restart)
             # Back near the goal but facing away (only just recovered: within the grace, so a
             # tracked clip's own quick turns are left to the tracker): a turn on the spot.
             away = abs(wrap_angle(heading_of(body.rot) - heading_of(ref_next.rot))) > TURN_AWAY

@@ -11,7 +11,7 @@ the one whose end lies nearest to the goal's pelvis, started at the body's pelvi
 heading and turned by the few degrees that put its end on the goal's bearing. It plays at the
 control rate to its last frame (standing still); then the goal is the task's again, the
 reference within `switch_distance`, and beyond it another walk from where the body stands. A
-body more than `RESTART_DISTANCE` from its walk, `SETTLE_STEPS` or more after the start, is shown
+body more than `guide_restart` from its walk, `SETTLE_STEPS` or more after the start, is shown
 a new one; a body that falls is shown a get-up (with `getup_guide`), and after it a walk. A body
 back near its goal (within the grace that follows recovering) but facing more than `TURN_AWAY`
 away is shown a turn on the spot to the goal's heading.

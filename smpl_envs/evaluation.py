@@ -102,6 +102,10 @@ class EvalProtocol:
     key: str = "score"
     minimize: bool = False
     options: dict[str, Any] = {}
+    # The clips the protocol measures on when `motions` is not given, over a policy's training
+    # motions (None: those): PHC's recovery protocol is the standing clip whatever a policy
+    # trained on, and a walking reference would leave a fallen body behind.
+    motions: str | None = None
     train_only_kwargs: tuple[str, ...] = ()
     forced_kwargs: tuple[str, ...] = ("num_envs", "autoreset_mode")
 
@@ -287,7 +291,8 @@ def evaluate(policy: Callable, env="SMPL/Imitation-v0", *, motions=None, num_env
         the env it was trained in (`smpl_envs.policy_settings`): only on its task; with its
         policy settings (action_mode, residual_scale, substeps ...); with the rest of its
         training env kwargs as the protocol carries them over, under `env_kwargs`; and on its
-        training motions unless `motions` says otherwise.
+        training motions unless `motions` says otherwise (or the protocol measures on clips of
+        its own: recovery on "stand").
     env: a registered task id (an env of at most `num_envs` worlds is made with `motions` and
         `env_kwargs`, and closed afterwards), or an existing suite vec env made with
         autoreset_mode="Disabled" (imitation also: termination_distance=None, no
@@ -316,7 +321,8 @@ def evaluate(policy: Callable, env="SMPL/Imitation-v0", *, motions=None, num_env
             policy_settings.check_task(trained_id, env)
             carried = runnable_here(protocol.eval_kwargs(trained_kwargs), env_kwargs, "the policy's training")
             env_kwargs = policy_settings.with_trained_settings(env, trained_kwargs, carried, override_settings)
-            motions = trained_kwargs.get("motions") if motions is None else motions
+            if motions is None:
+                motions = protocol.motions or trained_kwargs.get("motions")
         env = protocol.make_env(env, motions, int(num_envs), env_kwargs, progress, options)
     elif motions is not None or env_kwargs is not None:
         raise ValueError("motions and env_kwargs are only for an env id; an existing env is "

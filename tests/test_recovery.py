@@ -13,7 +13,7 @@ import pytest
 
 import smpl_envs
 from smpl_envs.envs.fallen import generate_fallen_states
-from smpl_envs.envs.recovery import (START_KINDS, check_starts, point_reward, recovered_within,
+from smpl_envs.envs.recovery import (START_KINDS, RecoveryProtocol, check_starts, point_reward, recovered_within,
                                      recovery_frame, recovery_reference)
 from smpl_envs.features import BodyState, heading_rotation, to_heading, tracking_obs
 from conftest import WARP_DEVICE, check_env_quietly, seeded_rollouts
@@ -293,6 +293,24 @@ def test_evaluation_protocol_runs_and_reports_the_table():
         smpl_envs.evaluate(zero, ID, trials=0)
     with pytest.raises(ValueError, match="starts"):
         smpl_envs.evaluate(zero, ID, trials=1, env_kwargs={"starts": {"fallen": 1.0}})
+
+
+def test_the_protocol_measures_on_the_standing_clip_whatever_the_policy_trained_on(monkeypatch):
+    # A policy recording training on [stand, walk] (as the recovery recipes do) is measured on
+    # "stand" unless told otherwise: a walking reference would leave a fallen body behind.
+    class Trained:
+        env_id, env_kwargs = ID, {"motions": ["stand", "walk"], "action_mode": "residual", **SMALL}
+
+        def __call__(self, obs):
+            return np.zeros((len(obs), 69), np.float32)
+
+    made = []
+    make_env = RecoveryProtocol.make_env
+    monkeypatch.setattr(RecoveryProtocol, "make_env",
+                        lambda self, env_id, motions, *a: made.append(motions) or make_env(self, env_id, motions, *a))
+    for motions in (None, "walk"):
+        smpl_envs.evaluate(Trained(), ID, motions=motions, num_envs=1, progress=False, trials=1, hold_seconds=0.1)
+    assert made == ["stand", "walk"]
 
 
 def test_bad_kwargs_raise_clear_errors():

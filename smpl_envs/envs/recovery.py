@@ -170,6 +170,7 @@ class RecoveryProtocol(EvalProtocol):
     """
 
     options = {"trials": 1000, "seed": 0, "threshold": 0.5, "hold_seconds": 1.0, "far_distance": 3.0}
+    motions = "stand"
     train_only_kwargs = ("start", "starts", "continue_prob", "far_distance", "termination_distance",
                          "max_episode_steps", "hold_end")
     kinds = ("fallen", "far", "fallen+far")
@@ -204,7 +205,7 @@ class RecoveryProtocol(EvalProtocol):
             raise ValueError(f"env_kwargs must not set {clash}: evaluate() chooses them")
         fd = float(options["far_distance"])
         return gym.make_vec(env_id, num_envs=min(num_envs, options["trials"]), autoreset_mode="Disabled",
-                            motions="stand" if motions is None else motions, termination_distance=None,
+                            motions=self.motions if motions is None else motions, termination_distance=None,
                             continue_prob=0.0, far_distance=(fd, fd), hold_end=True,
                             max_episode_steps=self.steps(options), **env_kwargs)
 

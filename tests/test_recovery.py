@@ -289,6 +289,13 @@ def test_evaluation_protocol_runs_and_reports_the_table():
     table = result.table()
     assert "Succ-5s" in table and "fallen+far" in table
     assert '"settings"' in result.to_json()
+    # One kind alone: the same trials as among all three (its seeds are the kind's, not the order's).
+    alone = smpl_envs.evaluate(zero, ID, num_envs=2, progress=False, trials=2, hold_seconds=0.2, kinds="fallen+far",
+                               env_kwargs={"action_mode": "residual", **SMALL})
+    assert [r["start"] for r in alone.rows] == ["fallen+far"] * 2 and "trials_fallen" not in alone.summary
+    assert alone.rows == [r for r in result.rows if r["start"] == "fallen+far"]
+    with pytest.raises(ValueError, match="kinds must name start kinds"):
+        smpl_envs.evaluate(zero, ID, trials=1, kinds=["fallen", "lying"])
     with pytest.raises(ValueError, match="trials"):
         smpl_envs.evaluate(zero, ID, trials=0)
     with pytest.raises(ValueError, match="starts"):
@@ -501,3 +508,27 @@ def test_imitation_with_recovery_on_the_warp_backend():
     _, _, term, _, info = env.step(env.unwrapped.reference_action())
     assert not info["recovering"].any() and (info["reward_point"] == 0).all()
     env.close()
+
+
+def test_the_settings_benchmark_swaps_goal_settings_only_and_traces_trials(tmp_path, capsys):
+    import importlib.util
+    from pathlib import Path
+
+    from agents import PPO
+
+    path = Path(__file__).parents[1] / "benchmarks" / "recovery_settings.py"
+    spec = importlib.util.spec_from_file_location("recovery_settings", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    model = PPO(ID, n_envs=1, env_kwargs={"action_mode": "residual", "walk_guide": "brisk", **SMALL},
+                policy_kwargs={"actor_hidden": (16,), "critic_hidden": (16,)}, verbose=0, device="cpu", seed=0)
+    model.save(tmp_path / "m.pt")
+    bench.main([str(tmp_path / "m.pt"), "--kinds", "far", "--trials", "2", "--num-envs", "2",
+                "--sweep", "walk_guide=brisk,brisk_exact"])
+    out = capsys.readouterr().out
+    assert "walk_guide=brisk:" in out and "walk_guide=brisk_exact:" in out and "far 0.0 /" in out
+    bench.main([str(tmp_path / "m.pt"), "--trace", "2", "--kinds", "far"])
+    out = capsys.readouterr().out
+    assert "back within 10 s: 0 of 2" in out  # an untrained policy walks nowhere
+    with pytest.raises(SystemExit, match="not a goal setting"):
+        bench.main([str(tmp_path / "m.pt"), "--set", "residual_scale=1.0"])

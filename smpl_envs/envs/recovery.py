@@ -150,7 +150,7 @@ class RecoveryResult(EvalResult):
 class RecoveryProtocol(EvalProtocol):
     """PHC's recovery evaluation (Succ-5s, Succ-10s), batched, seeded, deterministic policy.
 
-    * For each start kind in fallen, far, fallen+far: `trials` (1000) trials on the standing clip
+    * For each start kind in fallen, far, fallen+far (or the ones `kinds` names): `trials` (1000) trials on the standing clip
       ("stand" unless `motions=` says otherwise), from its first frame; the reference holds the
       clip's last frame past its end. A far start is exactly `far_distance` (3 m) away. Trials
       run in waves of `num_envs` worlds, wave k of start kind i reset with seed
@@ -169,11 +169,11 @@ class RecoveryProtocol(EvalProtocol):
       (their mean over the kinds and the two horizons), which ranks checkpoints.
     """
 
-    options = {"trials": 1000, "seed": 0, "threshold": 0.5, "hold_seconds": 1.0, "far_distance": 3.0}
+    kinds = ("fallen", "far", "fallen+far")
+    options = {"trials": 1000, "seed": 0, "threshold": 0.5, "hold_seconds": 1.0, "far_distance": 3.0, "kinds": kinds}
     motions = "stand"
     train_only_kwargs = ("start", "starts", "continue_prob", "far_distance", "termination_distance",
                          "max_episode_steps", "hold_end")
-    kinds = ("fallen", "far", "fallen+far")
 
     def check_options(self, options: dict) -> dict:
         options = dict(options)
@@ -189,6 +189,10 @@ class RecoveryProtocol(EvalProtocol):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 \
                     or (v == 0 and name != "hold_seconds"):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
+        kinds = [options["kinds"]] if isinstance(options["kinds"], str) else list(options["kinds"])
+        if not kinds or any(k not in self.kinds for k in kinds) or len(set(kinds)) < len(kinds):
+            raise ValueError(f"kinds must name start kinds of {list(self.kinds)}, each once, got {options['kinds']!r}")
+        options["kinds"] = tuple(k for k in self.kinds if k in kinds)  # the protocol's order
         return options
 
     def record_kwargs(self, train_kwargs: dict) -> dict:
@@ -225,9 +229,10 @@ class RecoveryProtocol(EvalProtocol):
         u = getattr(env, "unwrapped", env)
         n, limit = u.num_envs, u.max_episode_steps
         rows = []
-        bar = pbar(total=options["trials"] * len(self.kinds), desc="evaluate", unit="trial", disable=not progress)
+        bar = pbar(total=options["trials"] * len(options["kinds"]), desc="evaluate", unit="trial", disable=not progress)
         try:
-            for i, kind in enumerate(self.kinds):
+            for kind in options["kinds"]:
+                i = self.kinds.index(kind)  # a kind's trials are the same whichever others run
                 done = 0
                 for wave in range(-(-options["trials"] // n)):
                     count = min(n, options["trials"] - done)

@@ -284,3 +284,22 @@ def test_the_exact_walk_guide_shows_the_same_clips_in_torch_as_in_numpy():
         np.testing.assert_allclose(tw.next().lin_vel.numpy(), w.next().lin_vel, atol=2e-2)
         w.advance(), tw.advance()
     env.close()
+
+
+@pytest.mark.parametrize("turn", [60 * DEG, -150 * DEG, 180 * DEG])
+def test_direct_walks_head_straight_for_the_goal_while_they_turn(turn):
+    raw, steady = approach(turn, 2.0, pace="brisk_direct"), approach(turn, 2.0, pace="brisk")
+    assert check_motion(raw).ok
+    lib = MotionLib([raw])
+    s = lib.body_state(np.arange(lib.lengths[0]))
+    pos, h = s.pos[:, 0, :2] - s.pos[0, 0, :2], heading_of(s.rot)
+    end = pos[-1]
+    # The pelvis keeps to the straight line from the start to the end (within the sway of a gait) ...
+    across = np.abs(pos[:, 0] * end[1] - pos[:, 1] * end[0]) / np.linalg.norm(end)
+    assert across.max() < 0.1
+    assert abs(wrap_angle(np.arctan2(end[1], end[0]) - h[0] - turn)) < 5 * DEG  # ... at the bearing `turn`
+    assert abs(wrap_angle(h[-1] - h[0] - turn)) < 10 * DEG  # and it ends facing that way
+    # ... and never moves away from the end: no curve round, no turn on the spot first.
+    remaining = np.linalg.norm(pos - end, axis=-1)
+    assert np.all(np.diff(remaining) < 0.01)
+    assert _arrival(raw) < _arrival(steady)

@@ -325,7 +325,8 @@ class RecoveryVecEnv(ImitationVecEnv):
     getup_guide (None; get-up clips, e.g. "corpus:getup", shown as the goal of a body down:
     `smpl_envs.envs.getup_guide`), walk_guide (False; True: a walk to the goal shown to a standing
     body far from it: `smpl_envs.envs.walk_guide`; "brisk": the same at a quicker pace,
-    `smpl_envs.motion.approach.PACES`; True is "steady"; "brisk_exact": brisk, ending on the goal),
+    `smpl_envs.motion.approach.PACES`; True is "steady"; "brisk_exact": brisk, ending on the goal; "brisk_direct": that, heading
+    straight for the goal),
     guide_basin (0: off; a reward weight w, with
     getup_guide: w exp(-10 e) for a body shown a get-up, e its mean squared body coordinate error
     from the clip, a wide basin around the clip where the imitation terms are ~0), guide_restart

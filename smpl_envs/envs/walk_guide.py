@@ -27,6 +27,8 @@ keep the pace and the rules they were trained with):
   each clip's length (`TIME_COST`), so a goal close behind a body is a step back, not a turn and
   a walk; and a body back near its goal with its pelvis more than `OFF_SPOT` off is led onto the
   spot as a far one is.
+* "brisk_direct" is "brisk_exact" with walks that head straight for the goal from the first step
+  (`Pace.direct`), stepping sideways or backwards while the body turns to face it.
 
 While guided, the goal, the residual base and the imitation terms of the reward are the walk's,
 as with a get-up; the point reward towards the task's reference stays, and the evaluation is

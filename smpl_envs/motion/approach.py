@@ -5,8 +5,11 @@ A clip stands still for a moment, turns by `turn` (radians, left positive) in sm
 (people turn first, then walk), walks on `distance` m and stops, standing. `approach_set()` is the
 grid of them the guide chooses from: their end points (relative to the start, in the start's
 heading frame) cover every direction at 30 deg and distances of 0.9-6.2 m: turned by at most ~15 deg more, one of them ends within ~0.3 m of any goal in that
-range. `turn_on_the_spot` clips turn a standing body round to face the way its goal faces.
-Frames, axes and signs are procedural's: x forward, y left, z up.
+range. `turn_on_the_spot` clips turn a standing body round to face the way its goal faces;
+`step_to` clips step a short way in any direction without turning (the exact rule's last metre).
+A `direct` pace (`Pace.direct`) walks straight at the end from the first step instead, stepping
+sideways or backwards while it turns. Frames, axes and signs are procedural's: x forward, y left,
+z up.
 """
 
 from __future__ import annotations

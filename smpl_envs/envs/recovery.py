@@ -150,9 +150,9 @@ class RecoveryResult(EvalResult):
 class RecoveryProtocol(EvalProtocol):
     """PHC's recovery evaluation (Succ-5s, Succ-10s), batched, seeded, deterministic policy.
 
-    * For each start kind in fallen, far, fallen+far (or the ones `kinds` names): `trials` (1000) trials on the standing clip
-      ("stand" unless `motions=` says otherwise), from its first frame; the reference holds the
-      clip's last frame past its end. A far start is exactly `far_distance` (3 m) away. Trials
+    * For each start kind in fallen, far, fallen+far (or those `kinds` names): `trials` (1000)
+      trials on the standing clip ("stand" unless `motions=` says otherwise), from its first
+      frame; the reference holds the clip's last frame past its end. A far start is exactly `far_distance` (3 m) away. Trials
       run in waves of `num_envs` worlds, wave k of start kind i reset with seed
       `seed + 10000 i + k`; the env's early termination is off, so a trial lasts 10 s +
       `hold_seconds` (330 steps) unless its simulation diverges (then it fails from there).
@@ -325,9 +325,8 @@ class RecoveryVecEnv(ImitationVecEnv):
     getup_guide (None; get-up clips, e.g. "corpus:getup", shown as the goal of a body down:
     `smpl_envs.envs.getup_guide`), walk_guide (False; True: a walk to the goal shown to a standing
     body far from it: `smpl_envs.envs.walk_guide`; "brisk": the same at a quicker pace,
-    `smpl_envs.motion.approach.PACES`; True is "steady"; "brisk_exact": brisk, ending on the goal; "brisk_direct": that, heading
-    straight for the goal),
-    guide_basin (0: off; a reward weight w, with
+    `smpl_envs.motion.approach.PACES`; True is "steady"; "brisk_exact": brisk, ending on the goal;
+    "brisk_direct": that, heading straight for the goal), guide_basin (0: off; a reward weight w, with
     getup_guide: w exp(-10 e) for a body shown a get-up, e its mean squared body coordinate error
     from the clip, a wide basin around the clip where the imitation terms are ~0), guide_restart
     (0.6 m: a guided body this far, in mean body distance, from its clip a second or more after

@@ -262,12 +262,12 @@ class RecoveryController:
             lost = w.active & (w.age >= SETTLE_STEPS) & (w.distance(body) > self.guide_restart)
             # Back near the goal but facing away (only just recovered: within the grace, so a
             # tracked clip's own quick turns are left to the tracker): a turn on the spot.
-            away = abs(wrap_angle(heading_of(body.rot) - heading_of(ref_next.rot))) > TURN_AWAY
+            just_back = self.grace > 0
+            away = just_back & (abs(wrap_angle(heading_of(body.rot) - heading_of(ref_next.rot))) > TURN_AWAY)
             move = far
             if w.exact:  # or off the spot: a tracker shown a standing reference half a metre away stands
-                off = (root_distance(body, ref_next) > OFF_SPOT) & (self.grace > 0)
+                off = just_back & (root_distance(body, ref_next) > OFF_SPOT)
                 away, move = away | off, far | off
-            away &= self.grace > 0
             walk = ~low & ~busy & (far | away) & (~w.active | lost)
             w.start(walk, body, ref_next, move)
             if g is not None:

@@ -76,6 +76,23 @@ def rotmat_from_quat(q):
     return (outer @ _const(m, _QUAT_TO_MAT, q)).reshape(*q.shape[:-1], 3, 3)
 
 
+def quat_from_rotmat(r):
+    """(..., 3, 3) rotation matrices -> (..., 4) unit quaternions (w, x, y, z), w >= 0. Each of
+    the four textbook formulas divides by one of w, x, y, z; the one with the largest divisor is
+    taken per matrix, so the result is accurate at every angle, a half turn included."""
+    m = xp(r)
+    r00, r11, r22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
+    t = m.stack([1 + r00 + r11 + r22, 1 + r00 - r11 - r22, 1 - r00 + r11 - r22, 1 - r00 - r11 + r22], -1)
+    a, b, c = r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]
+    d, e, f = r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1]
+    cand = m.stack([m.stack([t[..., 0], a, b, c], -1), m.stack([a, t[..., 1], d, e], -1),
+                    m.stack([b, d, t[..., 2], f], -1), m.stack([c, e, f, t[..., 3]], -1)], -2)
+    cand = cand / (2.0 * m.sqrt(t.clip(min=1e-12)))[..., None]
+    four = m.arange(4) if m is np else m.arange(4, device=r.device)
+    q = (cand * (t.argmax(-1)[..., None] == four)[..., None]).sum(-2)
+    return q * m.where(q[..., :1] < 0, -1.0, 1.0)
+
+
 def rot6d(rot):
     """(..., 3, 3) -> (..., 6): first two columns, row by row."""
     return rot[..., :, :2].reshape(*rot.shape[:-2], 6)

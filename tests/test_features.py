@@ -6,7 +6,7 @@ import torch
 
 from smpl_envs.features import (AMP_LAYOUT, IMITATION_GOAL_LAYOUT, KEYPOINT_GOAL_LAYOUT,
                                 SELF_OBS_LAYOUT, BodyState, amp_features, heading_rotation,
-                                layout_size, rotation_angle, rotmat_from_quat, self_obs,
+                                layout_size, quat_from_rotmat, rotation_angle, rotmat_from_quat, self_obs,
                                 to_heading, tracking_obs)
 from smpl_envs.motion import MotionLib
 from smpl_envs.rotations import quat_from_rotvec, quat_to_matrix, yaw_quat
@@ -31,6 +31,17 @@ def test_layout_sizes_match_reference():
 def test_rotmat_from_quat_matches_scipy():
     q = quat_from_rotvec(np.random.default_rng(0).normal(size=(50, 3)))
     np.testing.assert_allclose(rotmat_from_quat(q), quat_to_matrix(q), atol=1e-12)
+
+
+def test_quat_from_rotmat_inverts_rotmat_from_quat_at_every_angle():
+    rv = np.random.default_rng(1).normal(size=(200, 3))
+    rv = np.concatenate([rv, np.pi * np.eye(3), np.pi * np.array([[0.6, 0.8, 0]]), np.zeros((1, 3))])  # half turns, none
+    m = quat_to_matrix(quat_from_rotvec(rv))
+    q = quat_from_rotmat(m)
+    assert (q[:, 0] >= 0).all()
+    np.testing.assert_allclose(np.linalg.norm(q, axis=-1), 1, atol=1e-12)
+    np.testing.assert_allclose(rotmat_from_quat(q), m, atol=1e-12)
+    np.testing.assert_allclose(quat_from_rotmat(torch.as_tensor(m)).numpy(), q, atol=1e-12)
 
 
 def test_heading_removes_yaw_only():

@@ -137,6 +137,74 @@ def test_guide_restart_is_the_distance_at_which_a_lagging_body_gets_a_new_getup(
     assert "guide_restart" in RecoveryVecEnv.policy_kwargs and "guide_restart" in RecoveryVecEnv.goal_settings
 
 
+def test_getup_blend_starts_the_getup_from_the_bodys_own_lie_and_fades_into_the_clip(guide_clips):
+    blend = 0.5
+    env, plain = _env(guide_clips, n=4, getup_blend=blend), _env(guide_clips, n=4)
+    u, p = env.unwrapped, plain.unwrapped
+    env.reset(seed=1)
+    plain.reset(seed=1)
+    g, body = u.recovery.guide, u.sim.bodies
+    assert u.getup_blend == blend and (g.age == 0).all() and u.recovery.guided.all()
+    shown, clip = g.current(), p.recovery.guide.current()
+    assert (p.recovery.guide.distance(body) > 0.1).all()  # the clip's own first frame lies elsewhere
+    np.testing.assert_allclose(shown.pos, body.pos, atol=1e-9)  # ... the blended one is the body
+    np.testing.assert_allclose(shown.rot, body.rot, atol=1e-6)
+    np.testing.assert_allclose(shown.dof_pos, body.dof_pos, atol=1e-6)
+    np.testing.assert_allclose(shown.rot @ shown.rot.swapaxes(-1, -2), np.eye(3)[None, None].repeat(24, 1).repeat(4, 0),
+                               atol=1e-6)
+    # Velocities are the derivatives of what is shown: finite differences over one step.
+    nxt, fps = g.next(), guide_clips.fps
+    mid = g._at(g.frame + 3)
+    after = g._at(g.frame + 4)
+    np.testing.assert_allclose(mid.lin_vel, (after.pos - g._at(g.frame + 2).pos) * fps / 2, atol=0.05)
+    d = after.rot @ g._at(g.frame + 2).rot.swapaxes(-1, -2)  # small rotation over two frames
+    angle = np.arccos(np.clip((np.trace(d, axis1=-2, axis2=-1) - 1) / 2, -1, 1))
+    spin = np.stack([d[..., 2, 1] - d[..., 1, 2], d[..., 0, 2] - d[..., 2, 0], d[..., 1, 0] - d[..., 0, 1]], -1)
+    spin *= (angle / (2 * np.sin(angle).clip(min=1e-9)))[..., None]  # the rotation vector
+    np.testing.assert_allclose(mid.ang_vel, spin * fps / 2, atol=0.1)
+    np.testing.assert_allclose(nxt.dof_pos, g.next_dof_pos(), atol=1e-9)
+    # From `blend` seconds on, the clip is the clip.
+    later = g.frame + int(round(blend * fps))
+    for name in ("pos", "rot", "lin_vel", "ang_vel", "dof_pos", "dof_vel"):
+        np.testing.assert_allclose(getattr(g._at(later), name), getattr(p.recovery.guide._at(later), name), atol=1e-9)
+    assert "getup_blend" in RecoveryVecEnv.goal_settings and "getup_blend" in RecoveryVecEnv.policy_kwargs
+    with pytest.raises(ValueError, match="getup_blend.*getup_guide"):
+        _env(None, getup_blend=0.5)
+    with pytest.raises(ValueError, match="getup_blend"):
+        _env(guide_clips, getup_blend=-1)
+    env.close()
+    plain.close()
+
+
+def test_the_blended_getup_is_the_same_in_torch(guide_clips):
+    # The Warp backend's path (torch arrays, DeviceFrames) of the blend, run on the CPU.
+    import torch
+
+    from smpl_envs.backend import NumpyBackend, TorchBackend
+    from smpl_envs.envs.getup_guide import GetupGuide
+    from smpl_envs.motion.library import DeviceFrames
+
+    env = _env(guide_clips, n=4)
+    env.reset(seed=2)
+    body = env.unwrapped.sim.bodies
+    tb = TorchBackend("cpu")
+    host = GetupGuide(guide_clips, guide_clips, 4, NumpyBackend(), blend=0.5)
+    dev = GetupGuide(guide_clips, DeviceFrames(guide_clips, "cpu"), 4, tb, blend=0.5)
+    host.start(np.ones(4, bool), body, np.random.default_rng(0))
+    clip = np.searchsorted(guide_clips.starts, host.frame, side="right") - 1
+    # one clip per lie in the fixture: both guides show the same ones
+    tbody = BodyState(**{k: torch.as_tensor(np.asarray(getattr(body, k)), dtype=torch.float32)
+                         for k in ("pos", "rot", "lin_vel", "ang_vel", "dof_pos", "dof_vel")})
+    dev.start(torch.ones(4, dtype=torch.bool), tbody, np.random.default_rng(0))
+    assert (dev.frame.numpy() - guide_clips.starts[clip] == 0).all()  # one clip per lie: the same ones
+    for step in (0, 5, 20):
+        a, b = host._at(host.frame + step), dev._at(dev.frame + step)
+        for name in ("pos", "rot", "lin_vel", "ang_vel", "dof_pos", "dof_vel"):
+            np.testing.assert_allclose(getattr(b, name).numpy(), getattr(a, name), atol=2e-4, err_msg=name)
+        np.testing.assert_allclose(dev.next_dof_pos().numpy(), host.next_dof_pos(), atol=2e-4)
+    env.close()
+
+
 def test_bad_getup_guides_are_named(guide_clips):
     only_front = MotionLib([getup("front", tempo=1.3, name="a"), getup("front", tempo=1.2, name="b")])
     with pytest.raises(ValueError, match="getup_guide: the get-up clips must start both on the front and on the back"):

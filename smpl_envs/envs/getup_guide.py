@@ -12,7 +12,9 @@ placed under the body's pelvis. It plays at the control rate until its last fram
 standing still); then the goal is the task's again: the reference within `switch_distance`, the
 recovery form beyond. A guided body that ends up more than the recovery option `guide_restart`
 (`RESTART_DISTANCE` by default) from its get-up while down, `SETTLE_STEPS` or more after the
-start, is shown a new one.
+start, is shown a new one. With the recovery option `getup_blend` (seconds; 0, off, by default)
+a get-up starts from the body's own pose instead of the clip's first frame, and fades into the
+clip over that time (`ClipGuide.lie_in`).
 
 While guided, the goal, the residual actions' base and the imitation terms of the reward are the
 get-up's (as when tracking); the episode does not terminate; the point reward towards the task's
@@ -26,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..features import BodyState, xp
+from ..features import BodyState, quat_from_rotmat, rotmat_from_quat, xp
 from ..humanoid.skeleton import BODY_NAMES
 
 DOWN_HEIGHT = 0.4       # m: a pelvis lower than this is on the floor (hands and knees: 0.4)
@@ -59,7 +61,7 @@ class ClipGuide:
     playback the get-up guide and the walk guide (`smpl_envs.envs.walk_guide`) share; their
     `start` rules say which clip a world is shown and how it is placed."""
 
-    def __init__(self, lib, frames, num_worlds: int, backend):
+    def __init__(self, lib, frames, num_worlds: int, backend, blend: float = 0.0):
         self.lib, self.frames, self.backend = lib, frames, backend
         b = backend
         self._first = lib.body_state(lib.starts)  # host arrays: each clip's first frame
@@ -76,6 +78,16 @@ class ClipGuide:
         self.begin = b.zeros(num_worlds, "int")
         self.shift = b.zeros((num_worlds, 2))
         self._shifting = False  # host flag: no shift was ever set (no device sync to find out)
+        # The body's own pose at a clip's start, as offsets from the clip's first frame (positions,
+        # a rotation per body, hinge angles), faded out over the clip's first `blend` seconds
+        # (smoothstep): the clip then starts where the body is, not where the clip's author lay.
+        # Set by a guide's `start` (`lie_in`); zero for a clip started otherwise.
+        self._blend_frames = int(round(blend * lib.fps))
+        if self._blend_frames:
+            self._lie_pos = b.zeros((num_worlds, *self._first.pos.shape[1:]))
+            self._lie_quat = b.zeros((num_worlds, self._first.pos.shape[1], 4))
+            self._lie_quat[..., 0] = 1.0
+            self._lie_dof = b.zeros((num_worlds, self._first.dof_pos.shape[1]))
 
     def _place(self, ids, clip, angle, pelvis_xy) -> None:
         """Worlds `ids` start clips `clip`, turned by `angle` about z, their first frame's pelvis
@@ -90,8 +102,21 @@ class ClipGuide:
         self.frame[ids] = self.begin[ids] = self.frames.starts[clip]
         self.end[ids] = self.frames.starts[clip] + self.frames.lengths[clip] - 1
         self.shift[ids] = 0.0
+        if self._blend_frames:
+            self._lie_pos[ids], self._lie_quat[ids], self._lie_dof[ids] = 0.0, 0.0, 0.0
+            self._lie_quat[ids, :, 0] = 1.0
         self.age[ids] = 0
         self.active[ids] = True
+
+    def lie_in(self, ids, body: BodyState) -> None:
+        """Worlds `ids`' clips, just placed, start from `body`'s pose and fade into their own over
+        `blend` seconds (the constructor's; nothing without one)."""
+        if not self._blend_frames or len(ids) == 0:
+            return
+        first = turn(self.frames.body_state(self.frame[ids]), self.cos[ids], self.sin[ids], self.offset[ids])
+        self._lie_pos[ids] = body.pos[ids] - first.pos
+        self._lie_quat[ids] = quat_from_rotmat(body.rot[ids] @ first.rot.swapaxes(-1, -2))
+        self._lie_dof[ids] = body.dof_pos[ids] - self.frames.dof_pos[self.frame[ids]]
 
     def stop(self, ids) -> None:
         self.active[ids] = False
@@ -106,7 +131,11 @@ class ClipGuide:
         self.active &= ~done
 
     def settled(self):
-        """(N,) how far each clip is into its first SETTLE_STEPS steps, 0 to 1."""
+        """(N,) how far each clip is into its first SETTLE_STEPS steps, 0 to 1: the share of the
+        residual range a guided body is pulled toward its clip by (`RecoveryController.pd_targets`).
+        A blended clip starts where the body is, so it pulls with the whole range from the start."""
+        if self._blend_frames:
+            return self.backend.zeros(len(self.age)) + 1.0
         return (self.age * (1.0 / SETTLE_STEPS)).clip(max=1.0)
 
     def distance(self, body: BodyState):
@@ -116,8 +145,36 @@ class ClipGuide:
 
     def _at(self, frames) -> BodyState:
         state = turn(self.frames.body_state(frames), self.cos, self.sin, self.offset)
-        if not self._shifting:
-            return state
+        if self._shifting:
+            state = self._shifted(state, frames)
+        if self._blend_frames:
+            state = self._blended(state, frames)
+        return state
+
+    def _fade(self, frames):
+        """(N,) how much of the body's own pose is left at `frames` (1 at the clip's start, 0 from
+        `blend` seconds in) and its rate of change (1/s)."""
+        u = ((frames - self.begin) * (1.0 / self._blend_frames)).clip(0.0, 1.0)
+        return 1.0 - u * u * (3.0 - 2.0 * u), -6.0 * u * (1.0 - u) * (self.lib.fps / self._blend_frames)
+
+    def _blended(self, state: BodyState, frames) -> BodyState:
+        m = xp(state.pos)
+        left, rate = self._fade(frames)
+        q = self._lie_quat
+        sin_half = m.sqrt((q[..., 1:] * q[..., 1:]).sum(-1))
+        half = m.arctan2(sin_half, q[..., 0])                       # (N, B): half the angle
+        axis = q[..., 1:] / sin_half.clip(min=1e-9)[..., None]
+        part = left[:, None] * half
+        lie = rotmat_from_quat(m.concatenate([m.cos(part)[..., None], m.sin(part)[..., None] * axis], -1))
+        spin = (2.0 * rate[:, None] * half)[..., None] * axis      # the fading rotation's angular velocity
+        return BodyState(pos=state.pos + left[:, None, None] * self._lie_pos,
+                         rot=lie @ state.rot,
+                         lin_vel=state.lin_vel + rate[:, None, None] * self._lie_pos,
+                         ang_vel=(lie @ state.ang_vel[..., None])[..., 0] + spin,
+                         dof_pos=state.dof_pos + left[:, None] * self._lie_dof,
+                         dof_vel=state.dof_vel + rate[:, None] * self._lie_dof)
+
+    def _shifted(self, state: BodyState, frames) -> BodyState:
         span = (self.end - self.begin).clip(min=1)
         u = ((frames - self.begin) / span).clip(0.0, 1.0)
         w = u * u * (3.0 - 2.0 * u)
@@ -146,15 +203,18 @@ class ClipGuide:
         return self._at(self.backend.xp.minimum(self.frame + 1, self.end))
 
     def next_dof_pos(self):
-        return self.frames.dof_pos[self.backend.xp.minimum(self.frame + 1, self.end)]
+        frames = self.backend.xp.minimum(self.frame + 1, self.end)
+        if not self._blend_frames:
+            return self.frames.dof_pos[frames]
+        return self.frames.dof_pos[frames] + self._fade(frames)[0][:, None] * self._lie_dof
 
 
 class GetupGuide(ClipGuide):
     """Get-ups for bodies down (module docstring): from the front for a body face down, from
     the back for one face up, turned so the head points where the body's does."""
 
-    def __init__(self, lib, frames, num_worlds: int, backend):
-        super().__init__(lib, frames, num_worlds, backend)
+    def __init__(self, lib, frames, num_worlds: int, backend, blend: float = 0.0):
+        super().__init__(lib, frames, num_worlds, backend, blend)
         b, first = backend, self._first
         prone = first.rot[:, 0, 2, 0] < 0   # the pelvis' forward axis points down: face down
         if prone.all() or not prone.any():
@@ -183,6 +243,7 @@ class GetupGuide(ClipGuide):
                        self._supine[b.integers(rng, 0, len(self._supine), n)])
         angle = _flat_angle(body.pos[ids, HEAD, :2] - body.pos[ids, 0, :2]) - self._clip_angle[clip]
         self._place(ids, clip, angle, body.pos[ids, 0, :2])
+        self.lie_in(ids, body)
         self.still[ids] = self._still_from[clip]
 
 

@@ -176,6 +176,33 @@ def test_getup_blend_starts_the_getup_from_the_bodys_own_lie_and_fades_into_the_
     plain.close()
 
 
+def test_guide_match_starts_a_getup_at_its_frame_nearest_the_body(guide_clips):
+    env, plain = _env(guide_clips, n=4, guide_match=1.0), _env(guide_clips, n=4)
+    u, p = env.unwrapped, plain.unwrapped
+    env.reset(seed=1)
+    plain.reset(seed=1)
+    g, body = u.recovery.guide, u.sim.bodies
+    assert u.guide_match == 1.0 and u.recovery.guided.all()
+    np.testing.assert_allclose(g.current().pos[:, 0, :2], body.pos[:, 0, :2], atol=1e-6)  # on the pelvis
+    np.testing.assert_allclose(_heading(g.current().pos), _heading(body.pos), atol=1e-6)   # head as the body's
+    assert (g.begin == g.frame).all() and (g.age == 0).all()
+    # No frame of the first second, placed the same way, lies nearer the body than the one chosen.
+    clip = np.searchsorted(guide_clips.starts, g.frame, side="right") - 1
+    first = guide_clips.starts[clip]
+    assert (g.frame - first < 30).all() and (g.frame > first).any()  # not always the first frame
+    chosen = g.distance(body)
+    assert (chosen <= p.recovery.guide.distance(body) + 1e-6).all()  # frame 0 is among the candidates
+    for k in range(0, 30, 3):
+        g._place(np.arange(4), clip, _heading(body.pos) - _heading(guide_clips.body_state(first + k).pos),
+                 body.pos[:, 0, :2], k)
+        assert (g.distance(body) >= chosen - 1e-6).all(), k
+    with pytest.raises(ValueError, match="guide_match.*getup_guide"):
+        _env(None, guide_match=1.0)
+    assert "guide_match" in RecoveryVecEnv.goal_settings
+    env.close()
+    plain.close()
+
+
 def test_the_blended_getup_is_the_same_in_torch(guide_clips):
     # The Warp backend's path (torch arrays, DeviceFrames) of the blend, run on the CPU.
     import torch

@@ -65,7 +65,6 @@ class ClipGuide:
         self.lib, self.frames, self.backend = lib, frames, backend
         b = backend
         self._first = lib.body_state(lib.starts)  # host arrays: each clip's first frame
-        self._clip_root = b.asarray(self._first.pos[:, 0])
         self.active = b.zeros(num_worlds, "bool")
         self.frame = b.zeros(num_worlds, "int")
         self.end = b.zeros(num_worlds, "int")
@@ -89,17 +88,18 @@ class ClipGuide:
             self._lie_quat[..., 0] = 1.0
             self._lie_dof = b.zeros((num_worlds, self._first.dof_pos.shape[1]))
 
-    def _place(self, ids, clip, angle, pelvis_xy) -> None:
-        """Worlds `ids` start clips `clip`, turned by `angle` about z, their first frame's pelvis
-        moved onto `pelvis_xy` (heights as the clip has them)."""
+    def _place(self, ids, clip, angle, pelvis_xy, skip=0) -> None:
+        """Worlds `ids` start clips `clip` `skip` frames in (0: at their first), turned by `angle`
+        about z, that frame's pelvis moved onto `pelvis_xy` (heights as the clip has them)."""
         m = self.backend.xp
         c, s = m.cos(angle), m.sin(angle)
-        root = self._clip_root[clip]
+        first = self.frames.starts[clip] + skip
+        root = self.frames.body_pos[first, 0]
         turned = m.stack([c * root[:, 0] - s * root[:, 1], s * root[:, 0] + c * root[:, 1]], -1)
         self.offset[ids, :2] = pelvis_xy - turned
         self.offset[ids, 2] = 0.0
         self.cos[ids], self.sin[ids] = c, s
-        self.frame[ids] = self.begin[ids] = self.frames.starts[clip]
+        self.frame[ids] = self.begin[ids] = first
         self.end[ids] = self.frames.starts[clip] + self.frames.lengths[clip] - 1
         self.shift[ids] = 0.0
         if self._blend_frames:
@@ -213,8 +213,11 @@ class GetupGuide(ClipGuide):
     """Get-ups for bodies down (module docstring): from the front for a body face down, from
     the back for one face up, turned so the head points where the body's does."""
 
-    def __init__(self, lib, frames, num_worlds: int, backend, blend: float = 0.0):
+    def __init__(self, lib, frames, num_worlds: int, backend, blend: float = 0.0, match: float = 0.0):
         super().__init__(lib, frames, num_worlds, backend, blend)
+        # Start frames a get-up may begin at (the recovery option `guide_match`): its first `match`
+        # seconds; 1 (its first frame only) without.
+        self._match = backend.asarray(np.arange(max(1, int(round(match * lib.fps)))), "int")
         b, first = backend, self._first
         prone = first.rot[:, 0, 2, 0] < 0   # the pelvis' forward axis points down: face down
         if prone.all() or not prone.any():
@@ -241,10 +244,36 @@ class GetupGuide(ClipGuide):
         prone = body.rot[ids, 0, 2, 0] < 0
         clip = m.where(prone, self._prone[b.integers(rng, 0, len(self._prone), n)],
                        self._supine[b.integers(rng, 0, len(self._supine), n)])
-        angle = _flat_angle(body.pos[ids, HEAD, :2] - body.pos[ids, 0, :2]) - self._clip_angle[clip]
-        self._place(ids, clip, angle, body.pos[ids, 0, :2])
+        heading = _flat_angle(body.pos[ids, HEAD, :2] - body.pos[ids, 0, :2])
+        skip = self._nearest_frame(clip, heading, body.pos[ids]) if len(self._match) > 1 else 0
+        if len(self._match) > 1:
+            first = self.frames.body_pos[self.frames.starts[clip] + skip]
+            angle = heading - _flat_angle(first[:, HEAD, :2] - first[:, 0, :2])
+        else:
+            angle = heading - self._clip_angle[clip]
+        self._place(ids, clip, angle, body.pos[ids, 0, :2], skip)
         self.lie_in(ids, body)
         self.still[ids] = self._still_from[clip]
+
+
+    def _nearest_frame(self, clip, heading, pos):
+        """(n,) the frame offset, within the first `match` seconds of each clip `clip`, whose pose,
+        turned to `heading` and placed on the pelvis as a start would place it, is nearest the
+        bodies at `pos` (n, 24, 3) in mean body distance."""
+        m = self.backend.xp
+        last = self.frames.lengths[clip] - 1
+        skip = m.minimum(self._match[None, :], last[:, None])                  # (n, W)
+        cand = self.frames.body_pos[self.frames.starts[clip][:, None] + skip]  # (n, W, 24, 3)
+        d = cand[..., HEAD, :2] - cand[..., 0, :2]
+        angle = heading[:, None] - m.arctan2(d[..., 1], d[..., 0])
+        c, s = m.cos(angle)[..., None], m.sin(angle)[..., None]
+        rel = cand - cand[..., :1, :]
+        x = c * rel[..., 0] - s * rel[..., 1] + pos[:, None, :1, 0]
+        y = s * rel[..., 0] + c * rel[..., 1] + pos[:, None, :1, 1]
+        err = m.sqrt((x - pos[:, None, :, 0]) ** 2 + (y - pos[:, None, :, 1]) ** 2
+                     + (cand[..., 2] - pos[:, None, :, 2]) ** 2).mean(-1)
+        pick = err.argmin(-1)
+        return skip[m.arange(len(pick)) if m is np else m.arange(len(pick), device=pick.device), pick]
 
 
 def still_from(lib) -> np.ndarray:

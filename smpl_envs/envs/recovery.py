@@ -331,7 +331,8 @@ class RecoveryVecEnv(ImitationVecEnv):
     from the clip, a wide basin around the clip where the imitation terms are ~0), guide_restart
     (0.6 m: a guided body this far, in mean body distance, from its clip a second or more after
     the clip began is shown a new one), getup_blend (0 s: off; with getup_guide, a get-up starts from
-    the body's own pose and fades into the clip's over this many seconds);
+    the body's own pose and fades into the clip's over this many seconds), guide_match (0 s: off; with
+    getup_guide, a get-up starts at the frame of its first this many seconds nearest the body's pose);
     and Imitation's (motions: "stand", reward_weights, reward_scales,
     energy_weight, termination_distance, action_mode, residual_scale, core kwargs).
     """
@@ -340,10 +341,10 @@ class RecoveryVecEnv(ImitationVecEnv):
     backends = ("cpu", "warp")
     # When and how the observation takes the recovery form, and what a residual action is added to then.
     policy_kwargs = (*ImitationVecEnv.policy_kwargs, "switch_distance", "clamp_distance", "recovery_action_base",
-                     "getup_guide", "walk_guide", "guide_restart", "getup_blend")
+                     "getup_guide", "walk_guide", "guide_restart", "getup_blend", "guide_match")
     # Of those, the ones that choose which clips the goal shows, not what an observation or action
     # means: a warm start (`agents.warm_start`) may change them, as it may change the motions.
-    goal_settings = ("getup_guide", "walk_guide", "guide_restart", "getup_blend")
+    goal_settings = ("getup_guide", "walk_guide", "guide_restart", "getup_blend", "guide_match")
     switch_distance = property(lambda self: self.recovery.switch_distance)
     clamp_distance = property(lambda self: self.recovery.clamp_distance)
     recovery_action_base = property(lambda self: self.recovery.action_base)
@@ -351,13 +352,15 @@ class RecoveryVecEnv(ImitationVecEnv):
     walk_guide = property(lambda self: self.recovery.walk_guide)
     guide_restart = property(lambda self: self.recovery.guide_restart)
     getup_blend = property(lambda self: self.recovery.getup_blend)
+    guide_match = property(lambda self: self.recovery.guide_match)
 
     def __init__(self, num_envs: int = 1, *, motions="stand", starts=None, switch_distance=SWITCH_DISTANCE,
                  clamp_distance=CLAMP_DISTANCE, point_scale=POINT_SCALE, point_clip=POINT_CLIP,
                  recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT, grace_steps=GRACE_STEPS,
                  continue_prob=0.5, far_distance=FAR_DISTANCE, hold_end=True, fallen_cache_size=128,
                  fallen_seed=0, recovery_action_base="reference", getup_guide=None, walk_guide=False,
-                 guide_basin=0.0, guide_restart=RESTART_DISTANCE, getup_blend=0.0, **kwargs):
+                 guide_basin=0.0, guide_restart=RESTART_DISTANCE, getup_blend=0.0, guide_match=0.0,
+                 **kwargs):
         if "recovery" in kwargs:
             raise ValueError("recovery: Recovery-v0 always recovers; its settings are its own kwargs")
         recovery = dict(starts=DEFAULT_STARTS if starts is None else starts, switch_distance=switch_distance,
@@ -367,7 +370,7 @@ class RecoveryVecEnv(ImitationVecEnv):
                         fallen_cache_size=fallen_cache_size, fallen_seed=fallen_seed,
                         recovery_action_base=recovery_action_base, getup_guide=getup_guide,
                         walk_guide=walk_guide, guide_basin=guide_basin, guide_restart=guide_restart,
-                        getup_blend=getup_blend)
+                        getup_blend=getup_blend, guide_match=guide_match)
         super().__init__(num_envs, motions=motions, recovery=recovery, **kwargs)
 
     def regenerate_fallen(self, seed: int | None = None) -> None:

@@ -112,7 +112,8 @@ class RecoveryController:
                  point_scale=POINT_SCALE, point_clip=POINT_CLIP, recovery_imitation_weight=RECOVERY_IMITATION_WEIGHT,
                  grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
                  fallen_cache_size=128, fallen_seed=0, recovery_action_base="reference", getup_guide=None,
-                 walk_guide=False, guide_basin=0.0, guide_restart=RESTART_DISTANCE, getup_blend=0.0):
+                 walk_guide=False, guide_basin=0.0, guide_restart=RESTART_DISTANCE, getup_blend=0.0,
+                 guide_match=0.0):
         self.p = check_starts({"reference": 1.0} if starts is None else starts)
         if recovery_action_base not in ACTION_BASES:
             raise ValueError(f"recovery_action_base must be one of {ACTION_BASES}, got {recovery_action_base!r}")
@@ -142,7 +143,10 @@ class RecoveryController:
         self.getup_blend = check_number("getup_blend", getup_blend)
         if self.getup_blend and getup_guide is None:
             raise ValueError("getup_blend fades a body's own pose into the get-up it is shown, so it needs getup_guide")
-        self.guide = None if getup_guide is None else _make_guide(getup_guide, env, self.getup_blend)
+        self.guide_match = check_number("guide_match", guide_match)
+        if self.guide_match and getup_guide is None:
+            raise ValueError("guide_match chooses where a get-up starts, so it needs getup_guide")
+        self.guide = None if getup_guide is None else _make_guide(getup_guide, env, self.getup_blend, self.guide_match)
         self.getup_guide = getup_guide
         pace = _walk_pace(walk_guide)
         self.walk = _make_walk_guide(env, pace) if pace else None
@@ -340,13 +344,13 @@ class RecoveryController:
         return info
 
 
-def _make_guide(motions, env, blend: float) -> GetupGuide:
+def _make_guide(motions, env, blend: float, match: float) -> GetupGuide:
     try:
         lib = load_motions(motions)
     except (ValueError, FileNotFoundError) as e:
         raise ValueError(f"getup_guide: {e}") from None
     frames = lib if env.backend.name == "cpu" else DeviceFrames(lib, env.backend.device)
-    return GetupGuide(lib, frames, env.num_envs, env.backend, blend)
+    return GetupGuide(lib, frames, env.num_envs, env.backend, blend, match)
 
 
 def _walk_pace(walk_guide):

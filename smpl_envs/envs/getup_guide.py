@@ -14,7 +14,9 @@ recovery form beyond. A guided body that ends up more than the recovery option `
 (`RESTART_DISTANCE` by default) from its get-up while down, `SETTLE_STEPS` or more after the
 start, is shown a new one. With the recovery option `getup_blend` (seconds; 0, off, by default)
 a get-up starts from the body's own pose instead of the clip's first frame, and fades into the
-clip over that time (`ClipGuide.lie_in`).
+clip over that time (`ClipGuide.lie_in`); with `guide_match` (seconds; 0, off) it starts at the
+frame of its first that many seconds whose pose lies nearest the body's. Both measured, neither
+helps yet (docs/results/learning.md, "A get-up from the body's own lie").
 
 While guided, the goal, the residual actions' base and the imitation terms of the reward are the
 get-up's (as when tracking); the episode does not terminate; the point reward towards the task's

@@ -228,7 +228,6 @@ class GetupGuide(ClipGuide):
                              f"all {lib.num_motions} start {have}")
         self._prone = b.asarray(np.flatnonzero(prone), "int")
         self._supine = b.asarray(np.flatnonzero(~prone), "int")
-        self._clip_angle = b.asarray(_flat_angle(first.pos[:, HEAD, :2] - first.pos[:, 0, :2]))
         self._still_from = b.asarray(still_from(lib), "int")   # (C,) first frame of each clip's still tail
         self.still = b.zeros(num_worlds, "int")                # ... of the clip each world is shown
 
@@ -248,11 +247,8 @@ class GetupGuide(ClipGuide):
                        self._supine[b.integers(rng, 0, len(self._supine), n)])
         heading = _flat_angle(body.pos[ids, HEAD, :2] - body.pos[ids, 0, :2])
         skip = self._nearest_frame(clip, heading, body.pos[ids]) if len(self._match) > 1 else 0
-        if len(self._match) > 1:
-            first = self.frames.body_pos[self.frames.starts[clip] + skip]
-            angle = heading - _flat_angle(first[:, HEAD, :2] - first[:, 0, :2])
-        else:
-            angle = heading - self._clip_angle[clip]
+        first = self.frames.body_pos[self.frames.starts[clip] + skip]
+        angle = heading - _flat_angle(first[:, HEAD, :2] - first[:, 0, :2])
         self._place(ids, clip, angle, body.pos[ids, 0, :2], skip)
         self.lie_in(ids, body)
         self.still[ids] = self._still_from[clip]
@@ -266,16 +262,15 @@ class GetupGuide(ClipGuide):
         last = self.frames.lengths[clip] - 1
         skip = m.minimum(self._match[None, :], last[:, None])                  # (n, W)
         cand = self.frames.body_pos[self.frames.starts[clip][:, None] + skip]  # (n, W, 24, 3)
-        d = cand[..., HEAD, :2] - cand[..., 0, :2]
-        angle = heading[:, None] - m.arctan2(d[..., 1], d[..., 0])
+        head = cand[..., HEAD, :2] - cand[..., 0, :2]
+        angle = heading[:, None] - m.arctan2(head[..., 1], head[..., 0])
         c, s = m.cos(angle)[..., None], m.sin(angle)[..., None]
         rel = cand - cand[..., :1, :]
-        x = c * rel[..., 0] - s * rel[..., 1] + pos[:, None, :1, 0]
-        y = s * rel[..., 0] + c * rel[..., 1] + pos[:, None, :1, 1]
-        err = m.sqrt((x - pos[:, None, :, 0]) ** 2 + (y - pos[:, None, :, 1]) ** 2
-                     + (cand[..., 2] - pos[:, None, :, 2]) ** 2).mean(-1)
-        pick = err.argmin(-1)
-        return skip[m.arange(len(pick)) if m is np else m.arange(len(pick), device=pick.device), pick]
+        placed = m.stack([c * rel[..., 0] - s * rel[..., 1] + pos[:, None, :1, 0],
+                          s * rel[..., 0] + c * rel[..., 1] + pos[:, None, :1, 1], cand[..., 2]], -1)
+        d = placed - pos[:, None]
+        pick = m.sqrt((d * d).sum(-1)).mean(-1).argmin(-1)
+        return m.minimum(pick, last)  # candidate k is frame min(k, last)
 
 
 def still_from(lib) -> np.ndarray:

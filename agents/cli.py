@@ -169,6 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--minutes", type=float, help="length of the reference (default: 5)")
     p.add_argument("--trials", type=int, help="worlds run at once, each with its own shoves (default: 1)")
     p.add_argument("--no-shoves", action="store_true", help="no shoves")
+    p.add_argument("--reference-waits", action="store_true",
+                   help="the reference's clock stops while a body is lost and goes on from there once it is back "
+                        "(input that can wait, as a generated motion); by default it walks on, as live input does")
     p.add_argument("--option", dest="options", action="append", default=[], metavar="KEY=VALUE",
                    help="any other option of smpl_envs.perpetual (shove_every=[10,20], shove_speed=[0.5,1.5] ...)")
     p.add_argument("--checkpoint", choices=("best", "last"), default="best")
@@ -278,6 +281,8 @@ def cmd_perpetual(args) -> int:
                     if v is not None})
     if args.no_shoves:
         options["shoves"] = False
+    if args.reference_waits:
+        options["reference_waits"] = True
     return perpetual_checkpoint(args.target, which=args.checkpoint, options=options, out=args.out, video=args.video,
                                 device=args.device, progress=not args.no_progress)
 

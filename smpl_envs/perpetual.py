@@ -30,7 +30,15 @@ not recovering (`smpl_envs.envs.recovery`).
   `shove_window` (2 s) before it.
 * A reset: the env ends a world's episode (its own termination rule, or a diverged simulation);
   the world restarts in the reference state where the reference is then (reset option
-  `start_frame`) and the loss it was in ends unrecovered.
+  `start_frame`) and the loss it was in ends unrecovered. `termination_distance=None` turns the
+  rule off: a body whose pose is lost with its pelvis near (where the recovery form does not
+  apply) then has to find the reference again itself, and only a diverged simulation resets.
+* The reference walks on while a body is lost (the default: live input, as from a video), or,
+  with `reference_waits=True` (the recovery option of `smpl_envs.envs.recovery_rules`), its clock
+  stops while the body is shown the recovery form or a guide's clip and goes on from the same
+  frame once the body is back within `switch_distance` (input that can wait, as a generated or
+  recorded motion played back): each loss is then a recovery to a fixed reference, as Recovery-v0
+  trains and `RecoveryProtocol` measures, followed by the clip from where it was left.
 
 Summary: minutes, trials, shoves, losses, falls, recovered (losses back within
 `recover_within`, 10 s), unrecovered, median and max time to recover (s), resets, and
@@ -54,7 +62,8 @@ CONTROL_FPS = 30
 ENV_ID = "SMPL/Imitation-v0"
 DEFAULTS = {"motions": "corpus:test", "minutes": 5.0, "trials": 1, "shoves": True, "shove_every": (10.0, 20.0),
             "shove_speed": (0.5, 1.5), "shove_window": 2.0, "threshold": 0.5, "hold_seconds": 1.0,
-            "recover_within": 10.0, "termination_distance": 0.5, "blend_frames": 10, "seed": 0}
+            "recover_within": 10.0, "termination_distance": 0.5, "blend_frames": 10, "seed": 0,
+            "reference_waits": False}
 
 
 # ---------------------------------------------------------------------------------------- the reference
@@ -133,8 +142,13 @@ class PerpetualResult:
                   f"{o['shove_speed'][1]:g} m/s" if o["shoves"] else "no shoves")
         ttr = ("-" if s["median_time_to_recover_s"] is None else
                f"{s['median_time_to_recover_s']:.2f} s median, {s['max_time_to_recover_s']:.2f} s max")
+        o = {**DEFAULTS, **o}
+        waits = "the reference waits while a body is lost" if o["reference_waits"] else "the reference walks on"
+        resets = ("no termination" if o["termination_distance"] is None
+                  else f"termination beyond {o['termination_distance']:g} m")
         return "\n".join([
             f"perpetual control: {s['minutes']:g} min of {o['motions']} chained, {s['trials']} world(s), {shoves}",
+            f"  {waits}; {resets}",
             f"  shoves {s['shoves']}, losses (> {o['threshold']:g} m) {s['losses']}, of them falls {s['falls']}",
             f"  recovered within {o['recover_within']:g} s: {s['recovered']}, unrecovered {s['unrecovered']}",
             f"  time to recover: {ttr}",
@@ -158,6 +172,8 @@ def check_options(options: dict) -> dict:
             raise ValueError(f"{name} must be an integer {'>= 1' if name == 'trials' else '>= 0'}, got {v!r}")
     for name in ("minutes", "threshold", "hold_seconds", "recover_within", "termination_distance", "shove_window"):
         v = o[name]
+        if v is None and name == "termination_distance":
+            continue
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 or (
                 v == 0 and name not in ("hold_seconds", "shove_window")):
             raise ValueError(f"{name} must be a positive number, got {v!r}")
@@ -169,7 +185,10 @@ def check_options(options: dict) -> dict:
         if not (0 <= lo <= hi and np.isfinite(hi)) or (name == "shove_every" and lo <= 0):
             raise ValueError(f"{name} must be a (min, max) pair with 0 < min <= max, got {o[name]!r}")
         o[name] = (lo, hi)
-    o["shoves"] = bool(o["shoves"])
+    for name in ("shoves", "reference_waits"):
+        if not isinstance(o[name], (bool, np.bool_)):
+            raise ValueError(f"{name} must be true or false, got {o[name]!r}")
+        o[name] = bool(o[name])
     return o
 
 
@@ -217,7 +236,7 @@ def evaluate_perpetual(policy, *, env_kwargs: dict | None = None, override_setti
     recovery = kwargs.get("recovery")
     recovery = {} if recovery in (None, True, False) else dict(recovery)
     # Perpetual: a world is never continued past a termination by chance, and starts on the reference.
-    recovery.update(continue_prob=0.0, starts={"reference": 1.0}, hold_end=False)
+    recovery.update(continue_prob=0.0, starts={"reference": 1.0}, hold_end=False, reference_waits=o["reference_waits"])
     kwargs["recovery"] = recovery
     clash = sorted(set(kwargs) & {"motions", "num_envs", "autoreset_mode", "start", "termination_distance",
                                   "max_episode_steps", "motion_weights"})

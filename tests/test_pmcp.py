@@ -18,7 +18,8 @@ import smpl_envs  # noqa: F401
 from agents.cli import main
 from agents.pmcp import Pipeline, check_pipeline, hard_clips, load_pipeline, settings_for, success_on
 from agents.recipes import RecipeError, find_checkpoint
-from smpl_envs.perpetual import chained_reference, count_losses, heading, perpetual_env_kwargs
+from smpl_envs.perpetual import (PerpetualResult, chained_reference, check_options, count_losses, heading,
+                                 perpetual_env_kwargs)
 
 TINY_TRAIN = ["env.num_envs=2", "agent.hyperparams.n_steps=16", "agent.hyperparams.batch_size=32",
               "agent.hyperparams.n_epochs=1", "eval.every=0", "video.steps=0", "eval.num_envs=2"]
@@ -162,6 +163,22 @@ def test_losses_recoveries_and_resets_on_hand_made_traces():
     assert row["recovered"] and row["time_to_recover_s"] == pytest.approx(25 / 30)
 
 
+def test_perpetual_options_the_reference_waiting_and_no_termination():
+    o = check_options({"reference_waits": True, "termination_distance": None})
+    assert o["reference_waits"] is True and o["termination_distance"] is None
+    assert check_options({})["reference_waits"] is False and check_options({})["termination_distance"] == 0.5
+    with pytest.raises(ValueError, match="reference_waits must be true or false"):
+        check_options({"reference_waits": "yes"})
+    with pytest.raises(ValueError, match="termination_distance must be a positive number"):
+        check_options({"termination_distance": -1})
+    summary = {"minutes": 1, "trials": 1, "shoves": 0, "losses": 0, "falls": 0, "recovered": 0, "unrecovered": 0,
+               "median_time_to_recover_s": None, "max_time_to_recover_s": None, "resets": 0, "perpetual": True}
+    waits = PerpetualResult([], [], [], summary, {**check_options({"reference_waits": True}), "shove_every": (1, 2)})
+    assert "the reference waits while a body is lost; termination beyond 0.5 m" in waits.table()
+    live = PerpetualResult([], [], [], summary, check_options({"termination_distance": None}))
+    assert "the reference walks on; no termination" in live.table()
+
+
 def test_the_chained_reference_is_continuous_and_as_long_as_asked():
     lib, clips = chained_reference(["walk", "turn"], minutes=0.25, seed=0, blend_frames=5)
     assert lib.num_motions == 1 and lib.lengths[0] == 451 and [c[1] for c in clips][0] == 0
@@ -187,8 +204,9 @@ def test_the_perpetual_test_on_a_tiny_setting(tmp_path):
     assert s["resets"] == sum(r["reset"] for r in result["losses"]) and not s["perpetual"]
     assert all(2 <= b["time_s"] - a["time_s"] <= 3.05 for a, b in zip(result["shoves"], result["shoves"][1:]))
     calm = tmp_path / "calm.json"
-    assert main([*args[:7], "--no-shoves", "--out", str(calm), "--no-progress"]) == 0
-    assert json.loads(calm.read_text())["summary"]["shoves"] == 0
+    assert main([*args[:7], "--no-shoves", "--reference-waits", "--out", str(calm), "--no-progress"]) == 0
+    calm = json.loads(calm.read_text())
+    assert calm["summary"]["shoves"] == 0 and calm["settings"]["reference_waits"] and not result["settings"]["reference_waits"]
     video = tmp_path / "perpetual.mp4"
     assert main(["perpetual", "clips", "--motions", "walk", "--minutes", "0.03", "--video", str(video),
                  "--no-progress"]) == 0

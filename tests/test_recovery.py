@@ -216,6 +216,42 @@ def test_imitation_with_recovery_does_not_terminate_when_far():
     env.close()
 
 
+def test_reference_waits_while_a_body_is_lost_and_goes_on_from_the_same_frame():
+    """reference_waits: a world shown the recovery form keeps its reference frame; a world on
+    its reference, and every world without the option, moves one frame a step."""
+    def frames(waits):
+        env = gym.make_vec("SMPL/Imitation-v0", num_envs=2, motions="walk", recovery={"reference_waits": waits})
+        env.reset(seed=0, options={"start": "beginning"})
+        u = env.unwrapped
+        qpos = u.sim.qpos.copy()
+        qpos[1, 0] += 3.0  # world 1 is 3 m from its reference
+        u.sim.set_state(np.arange(2), qpos, u.sim.qvel.copy())
+        env.step(u.reference_action())  # the observation after it shows world 1 the recovery form
+        start = np.asarray(u.frame).copy()
+        seen = []
+        for _ in range(10):
+            _, _, _, _, info = env.step(u.reference_action())
+            seen.append(np.asarray(u.frame) - start)
+            assert info["recovering"][1] and not info["recovering"][0]
+        # Back on its reference: the held world's clock goes on from where it stopped.
+        qpos = u.sim.qpos.copy()
+        qpos[1, :3] = np.asarray(info["ref_body_pos"])[1, 0]
+        u.sim.set_state(np.array([1]), qpos[[1]], u.sim.qvel.copy()[[1]])
+        env.step(u.reference_action())
+        env.step(u.reference_action())
+        after = np.asarray(u.frame) - start
+        env.close()
+        return np.array(seen), after
+
+    seen, after = frames(True)
+    assert (seen[:, 0] == np.arange(1, 11)).all() and (seen[:, 1] == 0).all()
+    assert after[0] == 12 and after[1] >= 1
+    seen, _ = frames(False)
+    assert (seen[:, 1] == np.arange(1, 11)).all()
+    with pytest.raises(ValueError, match="reference_waits must be True or False"):
+        gym.make_vec("SMPL/Imitation-v0", num_envs=1, motions="walk", recovery={"reference_waits": "yes"})
+
+
 def test_termination_continues_as_recovery_with_grace():
     def first_termination(continue_prob):
         env = _vec(4, starts={"reference": 1.0}, termination_distance=0.05, continue_prob=continue_prob,

@@ -209,9 +209,11 @@ class ImitationVecEnv(HumanoidVecEnv):
         return targets
 
     def _advance(self, active):
-        self.ref.advance(active)
-        if self.recovery is not None:
-            self.recovery.advance(active)
+        if self.recovery is None:
+            self.ref.advance(active)
+            return
+        self.ref.advance(self.recovery.reference_running(active))
+        self.recovery.advance(active)
 
     def _evaluate(self, body, heading):
         ref = self.ref.current()

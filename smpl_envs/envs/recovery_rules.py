@@ -113,7 +113,7 @@ class RecoveryController:
                  grace_steps=GRACE_STEPS, continue_prob=0.0, far_distance=FAR_DISTANCE, hold_end=False,
                  fallen_cache_size=128, fallen_seed=0, recovery_action_base="reference", getup_guide=None,
                  walk_guide=False, guide_basin=0.0, guide_restart=RESTART_DISTANCE, getup_blend=0.0,
-                 guide_match=0.0):
+                 guide_match=0.0, reference_waits=False):
         self.p = check_starts({"reference": 1.0} if starts is None else starts)
         if recovery_action_base not in ACTION_BASES:
             raise ValueError(f"recovery_action_base must be one of {ACTION_BASES}, got {recovery_action_base!r}")
@@ -131,6 +131,9 @@ class RecoveryController:
         self.grace_steps = int(grace_steps)
         self.far_distance = check_range("far_distance", far_distance, 0.0)
         self.hold_end = bool(hold_end)
+        if not isinstance(reference_waits, (bool, np.bool_)):
+            raise ValueError(f"reference_waits must be True or False, got {reference_waits!r}")
+        self.reference_waits = bool(reference_waits)
         self.backend = b = env.backend
         self.fallen = FallenStates(fallen_cache_size, fallen_seed, b)
         self.hum = env.humanoid
@@ -304,6 +307,16 @@ class RecoveryController:
     def advance(self, active=None) -> None:
         for g in self._guides:
             g.advance(active)
+
+    def reference_running(self, active=None):
+        """The worlds whose reference clock moves on this step (of `active`, None: all): with
+        `reference_waits`, not those whose last observation showed the recovery form or a guide's
+        clip, so that a lost body is led back to the reference where it was lost, not where it
+        has gone since."""
+        if not self.reference_waits:
+            return active
+        waiting = self.showing | self.guided
+        return ~waiting if active is None else active & ~waiting
 
     def pd_targets(self, targets, actions, action_scale, action_mode: str, residual_scale: float, pose, ref_pose):
         """The PD targets of a step: Imitation's `targets`, except for residual actions of worlds

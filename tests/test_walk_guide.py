@@ -239,6 +239,27 @@ def test_under_the_exact_rule_a_body_near_but_off_the_spot_steps_onto_it():
     assert guided == {"brisk": [False, False, False], "brisk_exact": [False, True, True]}
 
 
+def test_a_body_that_never_lands_on_the_spot_is_not_shown_steps_forever():
+    """The grace that shows steps onto the spot runs out while they play: a body that stays 0.4 m
+    off its goal (it does not follow its steps) is shown the task's goal again once its step has
+    played, not a new step each time the last one leaves it behind."""
+    env = _exact_env(1, starts={"reference": 1.0})
+    u = env.unwrapped
+    env.reset(seed=0)
+    rec, rng, zero = u.recovery, np.random.default_rng(0), np.zeros(1)
+    rec.grace[:] = 10  # just recovered
+    body, ref = _place_near(u, np.array([[0.0, 0.4]]))
+    shown = []
+    for _ in range(600):
+        rec.goal_reference(body, ref, rng)
+        shown.append(bool(rec.guided[0]))
+        rec.advance()
+        rec.evaluate(body, ref, zero.copy(), {"energy": zero.copy()}, np.zeros(1, bool), np.zeros(1, bool), rng,
+                     guide_terms={"energy": zero.copy()})
+    env.close()
+    assert shown[0] and not any(shown[-300:])
+
+
 def test_under_the_exact_rule_a_goal_close_behind_is_a_step_back_not_a_turn_and_a_walk():
     lengths = {}
     for pace in ("brisk", "brisk_exact"):

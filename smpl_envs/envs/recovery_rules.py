@@ -217,12 +217,18 @@ class RecoveryController:
         point = point_reward(self.root_distance, d, self.point_scale, self.point_clip)
         self.root_distance = d
         guided = None if guide_terms is None else self.guided
+        held = rec  # what keeps the grace at its full length
         if rec.any() or guided is not None:
             w = xp.where(rec, self.imitation_weight, 1.0)
             terms = {k: (v if k == "energy" else v * w) for k, v in terms.items()}
             if guided is not None:
                 terms = {k: (xp.where(guided, guide_terms[k], v) if k != "energy" else v) for k, v in terms.items()}
-                rec = rec | guided  # no termination while a get-up plays
+                # A get-up holds the grace; a walk shown to a body already near its goal (a turn, or
+                # a step onto the spot) does not, so the grace that shows such walks runs out even
+                # for a body that never lands within OFF_SPOT (it would be shown steps forever).
+                if self.guide is not None:
+                    held = rec | self._shown[0]
+                rec = rec | guided  # no termination while a guide's clip plays
             if self.guide_basin:
                 terms["basin"] = self._basin(body) if guided is not None else xp.zeros_like(reward)
             terms["point"] = xp.where(rec, point, 0.0)
@@ -231,7 +237,7 @@ class RecoveryController:
             terms = {**terms, "point": xp.zeros_like(reward)}
             if self.guide_basin:
                 terms["basin"] = xp.zeros_like(reward)
-        self.grace = xp.where(rec, self.grace_steps, (self.grace - 1).clip(min=0))
+        self.grace = xp.where(held, self.grace_steps, (self.grace - 1).clip(min=0))
         terminated = terminated & ~rec & (self.grace == 0)
         if self.continue_prob > 0 and terminated.any():
             ids = b.nonzero(terminated)

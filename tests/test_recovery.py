@@ -568,3 +568,28 @@ def test_the_settings_benchmark_swaps_goal_settings_only_and_traces_trials(tmp_p
     assert "back within 10 s: 0 of 2" in out  # an untrained policy walks nowhere
     with pytest.raises(SystemExit, match="not a goal setting"):
         bench.main([str(tmp_path / "m.pt"), "--set", "residual_scale=1.0"])
+
+
+@warp
+def test_the_reference_waits_on_the_warp_backend_as_on_the_cpu():
+    """reference_waits in torch: the worlds started lost keep their reference frame while the
+    world started on its reference moves on, as on the CPU backend."""
+    frames = {}
+    for backend in ("warp", "cpu"):
+        env = _warp_vec("SMPL/Imitation-v0", backend=backend, recovery={"reference_waits": True,
+                                                                         "starts": {"reference": 1.0}})
+        u = env.unwrapped
+        env.reset(seed=0, options={"start": "beginning"})
+        qpos, qvel = u.sim.qpos, u.sim.qvel
+        qpos = qpos.clone() if backend == "warp" else qpos.copy()
+        qpos[1:, 0] += 3.0  # worlds 1-3 are 3 m from their reference
+        u.sim.set_state(u.backend.asarray([1, 2, 3], "int"), qpos[1:], (qvel.clone() if backend == "warp"
+                                                                       else qvel.copy())[1:])
+        zero = u.backend.zeros((4, 69))
+        env.step(zero)
+        start = u.backend.to_numpy(u.ref.frame).copy()
+        for _ in range(5):
+            env.step(zero)
+        frames[backend] = u.backend.to_numpy(u.ref.frame) - start
+        env.close()
+    assert frames["warp"].tolist() == frames["cpu"].tolist() == [5, 0, 0, 0]

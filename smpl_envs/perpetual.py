@@ -137,12 +137,11 @@ class PerpetualResult:
         return path
 
     def table(self) -> str:
-        s, o = self.summary, self.settings
+        s, o = self.summary, {**DEFAULTS, **self.settings}  # a result saved before an option existed
         shoves = (f"shoves every {o['shove_every'][0]:g}-{o['shove_every'][1]:g} s of {o['shove_speed'][0]:g}-"
                   f"{o['shove_speed'][1]:g} m/s" if o["shoves"] else "no shoves")
         ttr = ("-" if s["median_time_to_recover_s"] is None else
                f"{s['median_time_to_recover_s']:.2f} s median, {s['max_time_to_recover_s']:.2f} s max")
-        o = {**DEFAULTS, **o}
         waits = "the reference waits while a body is lost" if o["reference_waits"] else "the reference walks on"
         resets = ("no termination" if o["termination_distance"] is None
                   else f"termination beyond {o['termination_distance']:g} m")

@@ -253,7 +253,6 @@ class GetupGuide(ClipGuide):
         self.lie_in(ids, body)
         self.still[ids] = self._still_from[clip]
 
-
     def _nearest_frame(self, clip, heading, pos):
         """(n,) the frame offset, within the first `match` seconds of each clip `clip`, whose pose,
         turned to `heading` and placed on the pelvis as a start would place it, is nearest the

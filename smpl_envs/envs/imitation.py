@@ -211,9 +211,9 @@ class ImitationVecEnv(HumanoidVecEnv):
     def _advance(self, active):
         if self.recovery is None:
             self.ref.advance(active)
-            return
-        self.ref.advance(self.recovery.reference_running(active))
-        self.recovery.advance(active)
+        else:
+            self.ref.advance(self.recovery.reference_running(active))
+            self.recovery.advance(active)
 
     def _evaluate(self, body, heading):
         ref = self.ref.current()

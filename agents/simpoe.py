@@ -46,7 +46,7 @@ from scratch with far more samples; this is PHC's reuse of the imitator.
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -70,6 +70,9 @@ OBS_DIM = max(s.stop for s in OBS.values())
 # The columns the refinement reads (kept raw by `normalize`).
 RAW_COLUMNS = ("estimate/ref_pos", "estimate/ref_rot", "video/est_dof", "video/keypoints", "video/confidence",
                "video/camera_rot", "video/camera_pos")
+# With `refined_reference`, also the estimate's differences from the simulated bodies: the actor's
+# reference is re-posed from them.
+REFERENCE_COLUMNS = ("estimate/diff_pos", "estimate/diff_rot")
 # Imitation-v0's observation: the first columns of VideoPose-v0's (its own state, the estimate as the
 # reference); what a warm start from an imitation policy maps onto.
 IMITATION_OBS = slice(0, OBS["estimate/ref_rot"].stop)
@@ -124,6 +127,22 @@ def _axis_rotations(angles: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, t
     ry = mat([[c[..., 1], zero, s[..., 1]], [zero, one, zero], [-s[..., 1], zero, c[..., 1]]])
     rz = mat([[c[..., 2], -s[..., 2], zero], [s[..., 2], c[..., 2], zero], [zero, zero, one]])
     return rx, ry, rz
+
+
+class Refinement(NamedTuple):
+    """What `RefinementUnit` returns: the refined angles (B, 69), the refined pose's dL/dX
+    (B, 24, 3), the reprojection loss before the first and after the last update (B,), and the
+    poses by forward kinematics (heading frame, from the estimate's root) of the refined angles
+    (`pos` (B, 24, 3), `rot` (B, 24, 3, 3)) and of the estimate's (`est_pos`, `est_rot`)."""
+
+    angles: torch.Tensor
+    grad: torch.Tensor
+    loss_before: torch.Tensor
+    loss_after: torch.Tensor
+    pos: torch.Tensor
+    rot: torch.Tensor
+    est_pos: torch.Tensor
+    est_rot: torch.Tensor
 
 
 class RefinementUnit(nn.Module):
@@ -198,14 +217,14 @@ class RefinementUnit(nn.Module):
         m = m[:, 1:]                                               # hinges belong to bodies 1..23
         return torch.einsum("bikx,bixy,biky->bik", axes, m, axes).reshape(len(pos), -1)
 
-    def forward(self, root_pos, root_rot, angles, keypoints, confidence, cam_rot, cam_pos):
-        """Refined angles (B, 69), the refined pose's dL/dX (B, 24, 3), and the loss before the
-        first and after the last update (B,) each."""
-        losses = []
+    def forward(self, root_pos, root_rot, angles, keypoints, confidence, cam_rot, cam_pos) -> Refinement:
+        """The refined estimate (`Refinement`)."""
+        losses, poses = [], []
         for k in range(self.iterations + 1):
-            pos, _, axes = self.forward_kinematics(root_pos, root_rot, angles)
+            pos, rot, axes = self.forward_kinematics(root_pos, root_rot, angles)
             loss, grad, jac = self.reprojection(pos, keypoints, confidence, cam_rot, cam_pos)
             losses.append(loss)
+            poses.append((pos, rot))
             if k == self.iterations:
                 break
             g_theta = self.angle_gradient(pos, axes, grad)
@@ -215,7 +234,7 @@ class RefinementUnit(nn.Module):
             feat = torch.cat([angles, rel, GRAD_FEATURE_SCALE * grad.reshape(len(pos), -1),
                               STEP_FEATURE_SCALE * gn.clamp(-1.0, 1.0), confidence], -1)
             angles = angles + (self.log_step[k].exp() * gn).clamp(-MAX_STEP, MAX_STEP) + self.correction(feat)
-        return angles, grad, losses[0], losses[-1]
+        return Refinement(angles, grad, losses[0], losses[-1], *poses[-1], *poses[0])
 
 
 def split_observation(obs: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -237,14 +256,21 @@ class KinematicRefinement(ValueCritic, Policy):
     Args (after the spaces): iterations (refinement updates; SimPoE: 5; 0: none), refine_hidden
     (the unit's correction MLP), actor_hidden, critic_hidden, activation, log_std_init,
     learn_std, obs_clip, normalize_value, residual_scale (the env's: refined angles become
-    residual actions with it).
+    residual actions with it), refined_reference.
+
+    `refined_reference`: the actor reads Imitation-v0's goal towards the refined pose instead of
+    the estimate (`reference_on`), as SimPoE's control unit computes its features from the refined
+    kinematic pose; a warm-started tracker then follows the refined pose with the weights it
+    learnt, rather than being shown the estimate while its targets are the refinement's. The
+    goal's velocity terms stay the estimate's (one frame gives no refined velocity). Off by
+    default: the policies trained before it (the shipped `videopose`) read the estimate.
     """
 
     def __init__(self, obs_dim: int, action_space: gym.spaces.Box | int, *, iterations: int = 5,
                  refine_hidden: Sequence[int] = (256, 256), actor_hidden: Sequence[int] = (512, 256),
                  critic_hidden: Sequence[int] = (512, 256), activation: str = "silu", log_std_init: float = -2.9,
                  learn_std: bool = False, obs_clip: float | None = 5.0, normalize_value: bool = True,
-                 residual_scale: float = 0.25):
+                 residual_scale: float = 0.25, refined_reference: bool = False):
         super().__init__(obs_dim, action_space)
         if self.obs_dim != OBS_DIM:
             raise ValueError(f"KinematicRefinement reads SMPL/VideoPose-v0's observation ({OBS_DIM} numbers), "
@@ -254,9 +280,10 @@ class KinematicRefinement(ValueCritic, Policy):
         if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
             raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
         self.iterations = iterations
+        self.refined_reference = bool(refined_reference)
         self.obs_norm = RunningNorm(obs_dim, clip=obs_clip)
         raw = torch.zeros(obs_dim, dtype=torch.bool)
-        for name in RAW_COLUMNS:
+        for name in RAW_COLUMNS + (REFERENCE_COLUMNS if self.refined_reference else ()):
             raw[OBS[name]] = True
         self.register_buffer("_raw", raw, persistent=False)
         self.refine = RefinementUnit(iterations, refine_hidden, activation)
@@ -286,8 +313,30 @@ class KinematicRefinement(ValueCritic, Policy):
         """(refined angles (B, 69), estimated angles (B, 69), dL/dX (B, 24, 3), loss before,
         loss after) of `normalize`d (or raw) observations."""
         parts = split_observation(nobs)
-        angles, grad, before, after = self.refine(**parts)
-        return angles, parts["angles"], grad, before, after
+        r = self.refine(**parts)
+        return r.angles, parts["angles"], r.grad, r.loss_before, r.loss_after
+
+    def reference_on(self, nobs: torch.Tensor, r: Refinement) -> torch.Tensor:
+        """`nobs` with its estimate block (Imitation-v0's goal) re-posed on the refinement `r`:
+        every body moved by (refined - estimated) position and turned by R_refined R_estimated^T,
+        all in the heading frame, so the positions, rotations and their differences from the
+        simulated bodies are those of the refined pose (the columns must be raw: REFERENCE_COLUMNS)."""
+        b = len(nobs)
+        move = (r.pos - r.est_pos).reshape(b, -1)
+        turn = r.rot @ r.est_rot.swapaxes(-1, -2)
+
+        def turned(name):
+            m = rot6d_to_matrix(nobs[:, OBS[name]].reshape(b, NUM_BODIES, 6))
+            return (turn @ m)[..., :, :2].reshape(b, -1)
+
+        new = {"estimate/diff_pos": nobs[:, OBS["estimate/diff_pos"]] + move,
+               "estimate/ref_pos": nobs[:, OBS["estimate/ref_pos"]] + move,
+               "estimate/diff_rot": turned("estimate/diff_rot"), "estimate/ref_rot": turned("estimate/ref_rot")}
+        cols, at = [], 0
+        for name, sl in sorted(((n, OBS[n]) for n in new), key=lambda kv: kv[1].start):
+            cols += [nobs[:, at:sl.start], new[name]]
+            at = sl.stop
+        return torch.cat(cols + [nobs[:, at:]], -1)
 
     def distribution(self, nobs: torch.Tensor) -> Normal:
         return self.scored_distribution(nobs)[0]
@@ -295,8 +344,11 @@ class KinematicRefinement(ValueCritic, Policy):
     def scored_distribution(self, nobs: torch.Tensor) -> tuple[Normal, dict[str, torch.Tensor]]:
         """The action distribution, with the refined angles (B, 69) it is centred on as
         `extras["refined_angles"]`: the refinement's supervised loss reuses this forward pass."""
-        angles, est, grad, _, _ = self.refined(nobs)
-        feat = torch.cat([self.features(nobs), angles, GRAD_FEATURE_SCALE * grad.reshape(len(nobs), -1)], -1)
+        parts = split_observation(nobs)
+        r = self.refine(**parts)
+        angles, est, grad = r.angles, parts["angles"], r.grad
+        seen = self.reference_on(nobs, r) if self.refined_reference else nobs
+        feat = torch.cat([self.features(seen), angles, GRAD_FEATURE_SCALE * grad.reshape(len(nobs), -1)], -1)
         mu = self.actor(feat)
         offset = (angles - est) / self._residual_unit
         mu = torch.cat([mu[:, :NUM_HINGES] + offset, mu[:, NUM_HINGES:]], -1)
@@ -552,5 +604,5 @@ class SimPoEPPO(PPO):
         self.refine_pretrained = bool(state.get("refine_pretrained", False))
 
 
-__all__ = ["KinematicRefinement", "RefinementUnit", "SimPoEPPO", "SimPoEPPOConfig", "split_observation",
+__all__ = ["KinematicRefinement", "Refinement", "RefinementUnit", "SimPoEPPO", "SimPoEPPOConfig", "split_observation",
            "rot6d_to_matrix"]

@@ -3,6 +3,7 @@
     python benchmarks/videopose_diagnosis.py knobs                      # which estimator error fells the tracker
     python benchmarks/videopose_diagnosis.py refinement videopose runs/videopose_aux
     python benchmarks/videopose_diagnosis.py step0                      # the recipe's policy before PPO
+    python benchmarks/videopose_diagnosis.py step0 --targets angles --set agent.policy.kwargs.refined_reference=false
     python benchmarks/videopose_diagnosis.py families RUN/evals/*.json  # no fall per motion family
     python benchmarks/videopose_diagnosis.py endings videopose          # why training episodes end
     python benchmarks/videopose_diagnosis.py noise videopose tracker    # one family's no fall by noise scale
@@ -138,8 +139,10 @@ def step0(args) -> None:
     print(f"**The recipe's policy before PPO, {args.motions}**\n")
     print("| refinement | rms body error (mm) | rms joint-angle error (deg) | no fall | MPJPE | PA-MPJPE |\n"
           "|---|---|---|---|---|---|")
-    for target in (None, "positions", "angles"):
-        recipe = load_recipe("videopose_ppo", overrides=[f"agent.hyperparams.refine_target={target or 'angles'}"])
+    for name in args.targets:
+        target = None if name == "untrained" else name
+        recipe = load_recipe("videopose_ppo", overrides=[*args.set,
+                                                          f"agent.hyperparams.refine_target={target or 'angles'}"])
         agent = new_agent(recipe, verbose=0, log_dir=None, tensorboard=False, update_threads=args.threads)
         errors = ("-", "-")
         if target is not None:
@@ -247,6 +250,10 @@ def main(argv=None) -> None:
     z.add_argument("--motions", default="corpus:test")
     z.add_argument("--num-envs", type=int, default=16)
     z.add_argument("--threads", type=int, default=2)
+    z.add_argument("--targets", nargs="+", choices=("untrained", "positions", "angles"),
+                   default=["untrained", "positions", "angles"], help="the rows: refinement before PPO")
+    z.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a recipe override (as train's --set), e.g. agent.policy.kwargs.refined_reference=true")
     f = sub.add_parser("families", help="no fall per motion family, from a run's evaluation files")
     f.add_argument("evals", nargs="+")
     e = sub.add_parser("endings", help="why a checkpoint's training episodes end")

@@ -488,6 +488,50 @@ def test_no_refinement_acts_on_the_estimate_and_the_raw_columns_stay_raw(video_o
         np.testing.assert_allclose(pol.critic_output(nobs), pol.critic(pol.obs_norm(obs)).squeeze(-1), atol=1e-6)
 
 
+def test_the_refined_reference_is_the_imitation_goal_of_the_refined_pose(video_obs):
+    from agents.simpoe import OBS, KinematicRefinement, rot6d_to_matrix, split_observation
+
+    obs, truth, space = video_obs
+    pol = KinematicRefinement(OBS_DIM, space, iterations=2, refined_reference=True)
+    pol.update_obs_stats(obs * 2 + 1)
+    nobs = pol.normalize(obs)
+    for name in ("estimate/diff_pos", "estimate/diff_rot"):  # kept raw: the goal is re-posed from them
+        assert torch.equal(nobs[:, OBS[name]], obs[:, OBS[name]])
+    # Re-posed on the true angles, the goal's reference is the true pose, and what it says about
+    # the simulated bodies (their positions and rotations) is unchanged.
+    parts = split_observation(nobs)
+    with torch.no_grad():
+        pos, rot, _ = pol.refine.forward_kinematics(parts["root_pos"], parts["root_rot"], truth)
+        out = pol.reference_on(nobs, pol.refine(**parts)._replace(angles=truth, pos=pos, rot=rot))
+    b = len(obs)
+    np.testing.assert_allclose(out[:, OBS["estimate/ref_pos"]], pos.reshape(b, -1), atol=1e-5)
+    np.testing.assert_allclose(out[:, OBS["estimate/ref_rot"]], rot[..., :2].reshape(b, -1), atol=1e-5)
+
+    def simulated(x):
+        ref = rot6d_to_matrix(x[:, OBS["estimate/ref_rot"]].reshape(b, 24, 6))
+        diff = rot6d_to_matrix(x[:, OBS["estimate/diff_rot"]].reshape(b, 24, 6))  # R_ref R_sim^T
+        return x[:, OBS["estimate/ref_pos"]] - x[:, OBS["estimate/diff_pos"]], ref.swapaxes(-1, -2) @ diff
+
+    for before, after in zip(simulated(obs), simulated(out)):
+        np.testing.assert_allclose(after, before, atol=1e-5)
+    assert (out[:, OBS["estimate/ref_pos"]] - obs[:, OBS["estimate/ref_pos"]]).abs().max() > 0.01
+    rest = torch.ones(OBS_DIM, dtype=torch.bool)
+    for name in ("estimate/diff_pos", "estimate/ref_pos", "estimate/diff_rot", "estimate/ref_rot"):
+        rest[OBS[name]] = False
+    assert torch.equal(out[:, rest], nobs[:, rest])
+    # The actor reads it; without refinement it is the estimate's goal, as the plain policy's.
+    with torch.no_grad():
+        r = pol.refine(**parts)
+        feat = torch.cat([pol.features(pol.reference_on(nobs, r)), r.angles, 100.0 * r.grad.reshape(b, -1)], -1)
+        offset = (r.angles - split_observation(nobs)["angles"]) / pol._residual_unit
+        np.testing.assert_allclose(pol.distribution(nobs).mean, pol.actor(feat) + offset, atol=1e-5)
+        plain = KinematicRefinement(OBS_DIM, space, iterations=0)
+        same = KinematicRefinement(OBS_DIM, space, iterations=0, refined_reference=True)
+        same.load_state_dict(plain.state_dict())
+        torch.testing.assert_close(same.distribution(same.normalize(obs)).mean,
+                                   plain.distribution(plain.normalize(obs)).mean)
+
+
 def test_a_warm_start_from_the_tracker_acts_as_the_tracker_on_the_estimate(video_obs):
     from agents import SimPoEPPO, load
     from agents.recipes import find_checkpoint

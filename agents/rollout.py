@@ -180,16 +180,20 @@ class InfoColumn(RolloutHooks):
     """Stores `info[key]`, which the env reports with each observation (`dim` numbers per world),
     beside that observation: the rollout's extra `key` (`carry`: in every minibatch too). The
     `info` of step t describes the observation after it, the next stored one; the last step's
-    waits for the next rollout's first row. `missing`: the error when the env reports no `key`."""
+    waits for the next rollout's first row. `missing`: the error when the env reports no `key`.
+    `sources`: info keys whose values, side by side, make the column (default: `key` alone)."""
 
-    def __init__(self, key: str, dim: int, device: torch.device, missing: str, carry: bool = False):
+    def __init__(self, key: str, dim: int, device: torch.device, missing: str, carry: bool = False,
+                 sources: tuple[str, ...] | None = None):
         self.key, self.dim, self.device, self.missing, self.carry = key, dim, device, missing, carry
+        self.sources = (key,) if sources is None else tuple(sources)
         self.next: torch.Tensor | None = None  # the value for the next rollout's first observation
 
     def _value(self, info: dict) -> torch.Tensor:
-        if self.key not in info:
+        if any(k not in info for k in self.sources):
             raise ValueError(self.missing)
-        return torch.as_tensor(info[self.key], dtype=torch.float32, device=self.device)
+        return torch.cat([torch.as_tensor(info[k], dtype=torch.float32, device=self.device).reshape(len(info[k]), -1)
+                          for k in self.sources], -1)
 
     def on_reset(self, info: dict) -> None:
         self.next = self._value(info)

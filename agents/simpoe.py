@@ -22,7 +22,10 @@ their confidences and the camera, and updates the joint angles `iterations` time
    cannot say (depth, occluded joints) from supervised regression and from PPO.
 
 The actor sees the (normalised) observation, the refined angles and the refined pose's dL/dX, and
-outputs a residual on top of the refined pose (SimPoE's residual angle connection): its action
+outputs a residual on top of the refined pose (SimPoE's residual angle connection). With
+`refined_reference` (the recipe's setting) the observation's imitation goal is first re-posed on
+the refined pose, so the actor tracks what the unit made of the estimate, as SimPoE's control unit
+reads features of the refined pose; without it the goal is the estimate's. Its action
 mean is (refined - estimated angles) / (residual_scale x range) + MLP(...) in the env's residual
 action units, and any meta-PD or root-force actions the env has (an MLP output each). Gradients of
 PPO's loss flow through the mean into the unit: refinement and control are trained together.
@@ -73,6 +76,7 @@ RAW_COLUMNS = ("estimate/ref_pos", "estimate/ref_rot", "video/est_dof", "video/k
 # With `refined_reference`, also the estimate's differences from the simulated bodies: the actor's
 # reference is re-posed from them.
 REFERENCE_COLUMNS = ("estimate/diff_pos", "estimate/diff_rot")
+ROOT_COLUMNS = ("self/root_height",)  # with `refine_root`: where the floor is
 # Imitation-v0's observation: the first columns of VideoPose-v0's (its own state, the estimate as the
 # reference); what a warm start from an imitation policy maps onto.
 IMITATION_OBS = slice(0, OBS["estimate/ref_rot"].stop)
@@ -131,9 +135,10 @@ def _axis_rotations(angles: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, t
 
 class Refinement(NamedTuple):
     """What `RefinementUnit` returns: the refined angles (B, 69), the refined pose's dL/dX
-    (B, 24, 3), the reprojection loss before the first and after the last update (B,), and the
-    poses by forward kinematics (heading frame, from the estimate's root) of the refined angles
-    (`pos` (B, 24, 3), `rot` (B, 24, 3, 3)) and of the estimate's (`est_pos`, `est_rot`)."""
+    (B, 24, 3), the reprojection loss before the first and after the last update (B,), the poses
+    by forward kinematics (heading frame) of the refined pose (`pos` (B, 24, 3), `rot`
+    (B, 24, 3, 3)) and of the estimate (`est_pos`, `est_rot`), and the refined root position
+    (B, 3: the estimate's unless the unit refines it)."""
 
     angles: torch.Tensor
     grad: torch.Tensor
@@ -143,6 +148,7 @@ class Refinement(NamedTuple):
     rot: torch.Tensor
     est_pos: torch.Tensor
     est_rot: torch.Tensor
+    root: torch.Tensor
 
 
 class RefinementUnit(nn.Module):
@@ -150,7 +156,7 @@ class RefinementUnit(nn.Module):
     joint angles from the gradient of the confidence-weighted reprojection loss."""
 
     def __init__(self, iterations: int = 5, hidden: Sequence[int] = (256, 256), activation: str = "silu",
-                 step: float = DEFAULT_STEP):
+                 step: float = DEFAULT_STEP, root: bool = False):
         super().__init__()
         self.iterations = int(iterations)
         self.register_buffer("offsets", torch.as_tensor(MEAN_SKELETON.offsets, dtype=torch.float32))
@@ -159,6 +165,11 @@ class RefinementUnit(nn.Module):
         feat = NUM_HINGES + 3 * NUM_BODIES + 3 * NUM_BODIES + NUM_HINGES + NUM_BODIES
         self.correction = mlp(feat, _sizes("refine_hidden", hidden), NUM_HINGES, activation, out_gain=0.0)
         self.log_step = nn.Parameter(torch.full((max(self.iterations, 1),), float(np.log(step))))
+        # The root's correction, after the angles': an MLP of the refined pose (its bodies relative
+        # to its root and their heights above the floor), the reprojection gradient's sum (dL/d root),
+        # the confidences and the root's and the camera's places; its last layer starts at zero.
+        self.root_correction = (mlp(3 * NUM_BODIES + NUM_BODIES + 3 + NUM_BODIES + 3 + 3,
+                                    _sizes("refine_hidden", hidden), 3, activation, out_gain=0.0) if root else None)
 
     # --- kinematics
     def forward_kinematics(self, root_pos, root_rot, angles):
@@ -217,8 +228,10 @@ class RefinementUnit(nn.Module):
         m = m[:, 1:]                                               # hinges belong to bodies 1..23
         return torch.einsum("bikx,bixy,biky->bik", axes, m, axes).reshape(len(pos), -1)
 
-    def forward(self, root_pos, root_rot, angles, keypoints, confidence, cam_rot, cam_pos) -> Refinement:
-        """The refined estimate (`Refinement`)."""
+    def forward(self, root_pos, root_rot, angles, keypoints, confidence, cam_rot, cam_pos,
+                floor: torch.Tensor | None = None) -> Refinement:
+        """The refined estimate (`Refinement`). `floor` (B,): the floor's height in the frame of
+        `root_pos` (the simulated pelvis's: minus its height); needed when the unit refines the root."""
         losses, poses = [], []
         for k in range(self.iterations + 1):
             pos, rot, axes = self.forward_kinematics(root_pos, root_rot, angles)
@@ -234,19 +247,36 @@ class RefinementUnit(nn.Module):
             feat = torch.cat([angles, rel, GRAD_FEATURE_SCALE * grad.reshape(len(pos), -1),
                               STEP_FEATURE_SCALE * gn.clamp(-1.0, 1.0), confidence], -1)
             angles = angles + (self.log_step[k].exp() * gn).clamp(-MAX_STEP, MAX_STEP) + self.correction(feat)
-        return Refinement(angles, grad, losses[0], losses[-1], *poses[-1], *poses[0])
+        pos, rot = poses[-1]
+        if self.root_correction is not None:
+            if floor is None:
+                raise ValueError("a unit that refines the root needs the floor's height (floor=)")
+            # A read-out of the refined pose: the root's loss trains this MLP alone, not the angles
+            # (through its inputs it pulled them from 2.1 to 3.3 deg rms in the pretraining).
+            b, p, g = len(pos), pos.detach(), grad.detach()
+            feat = torch.cat([(p - p[:, :1]).reshape(b, -1), p[..., 2] - floor[:, None],
+                              GRAD_FEATURE_SCALE * g.sum(1), confidence, root_pos, cam_pos], -1)
+            move = self.root_correction(feat)
+            root_pos, pos = root_pos + move, pos + move[:, None]
+            loss, grad, _ = self.reprojection(pos, keypoints, confidence, cam_rot, cam_pos)
+            losses[-1] = loss
+        return Refinement(angles, grad, losses[0], losses[-1], pos, rot, *poses[0], root_pos)
 
 
-def split_observation(obs: torch.Tensor) -> dict[str, torch.Tensor]:
-    """The refinement's inputs from raw VideoPose-v0 observations (B, 1087)."""
+def split_observation(obs: torch.Tensor, floor: bool = False) -> dict[str, torch.Tensor]:
+    """The refinement's inputs from raw VideoPose-v0 observations (B, 1087); `floor`: with the
+    floor's height relative to the simulated pelvis, for a unit that refines the root."""
     b = len(obs)
-    return {"root_pos": obs[:, OBS["estimate/ref_pos"]][:, :3],
-            "root_rot": rot6d_to_matrix(obs[:, OBS["estimate/ref_rot"]][:, :6]),
-            "angles": obs[:, OBS["video/est_dof"]],
-            "keypoints": obs[:, OBS["video/keypoints"]].reshape(b, NUM_BODIES, 2),
-            "confidence": obs[:, OBS["video/confidence"]],
-            "cam_rot": obs[:, OBS["video/camera_rot"]].reshape(b, 3, 3),
-            "cam_pos": obs[:, OBS["video/camera_pos"]]}
+    parts = {"root_pos": obs[:, OBS["estimate/ref_pos"]][:, :3],
+             "root_rot": rot6d_to_matrix(obs[:, OBS["estimate/ref_rot"]][:, :6]),
+             "angles": obs[:, OBS["video/est_dof"]],
+             "keypoints": obs[:, OBS["video/keypoints"]].reshape(b, NUM_BODIES, 2),
+             "confidence": obs[:, OBS["video/confidence"]],
+             "cam_rot": obs[:, OBS["video/camera_rot"]].reshape(b, 3, 3),
+             "cam_pos": obs[:, OBS["video/camera_pos"]]}
+    if floor:
+        parts["floor"] = -obs[:, OBS["self/root_height"]][:, 0]
+    return parts
 
 
 @register_policy
@@ -256,7 +286,7 @@ class KinematicRefinement(ValueCritic, Policy):
     Args (after the spaces): iterations (refinement updates; SimPoE: 5; 0: none), refine_hidden
     (the unit's correction MLP), actor_hidden, critic_hidden, activation, log_std_init,
     learn_std, obs_clip, normalize_value, residual_scale (the env's: refined angles become
-    residual actions with it), refined_reference.
+    residual actions with it), refined_reference, refine_root.
 
     `refined_reference`: the actor reads Imitation-v0's goal towards the refined pose instead of
     the estimate (`reference_on`), as SimPoE's control unit computes its features from the refined
@@ -264,13 +294,21 @@ class KinematicRefinement(ValueCritic, Policy):
     learnt, rather than being shown the estimate while its targets are the refinement's. The
     goal's velocity terms stay the estimate's (one frame gives no refined velocity). Off by
     default: the policies trained before it (the shipped `videopose`) read the estimate.
+
+    `refine_root`: the unit also corrects the estimate's root position (one learnt update after
+    the angles', from the refined pose's heights above the floor and the reprojection gradient):
+    the estimate sinks into the floor and drifts along the camera ray, and the tracker falls more
+    often on the true joint angles with the estimate's root than with the true root (29.7 against
+    39.1 % without a fall, docs/tasks/videopose.md). The refined root moves the actor's goal
+    (with `refined_reference`); the PD targets are joint angles and do not depend on it. Off by
+    default, as `refined_reference`.
     """
 
     def __init__(self, obs_dim: int, action_space: gym.spaces.Box | int, *, iterations: int = 5,
                  refine_hidden: Sequence[int] = (256, 256), actor_hidden: Sequence[int] = (512, 256),
                  critic_hidden: Sequence[int] = (512, 256), activation: str = "silu", log_std_init: float = -2.9,
                  learn_std: bool = False, obs_clip: float | None = 5.0, normalize_value: bool = True,
-                 residual_scale: float = 0.25, refined_reference: bool = False):
+                 residual_scale: float = 0.25, refined_reference: bool = False, refine_root: bool = False):
         super().__init__(obs_dim, action_space)
         if self.obs_dim != OBS_DIM:
             raise ValueError(f"KinematicRefinement reads SMPL/VideoPose-v0's observation ({OBS_DIM} numbers), "
@@ -280,13 +318,14 @@ class KinematicRefinement(ValueCritic, Policy):
         if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
             raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
         self.iterations = iterations
-        self.refined_reference = bool(refined_reference)
+        self.refined_reference, self.refine_root = bool(refined_reference), bool(refine_root)
         self.obs_norm = RunningNorm(obs_dim, clip=obs_clip)
         raw = torch.zeros(obs_dim, dtype=torch.bool)
-        for name in RAW_COLUMNS + (REFERENCE_COLUMNS if self.refined_reference else ()):
+        for name in (RAW_COLUMNS + (REFERENCE_COLUMNS if self.refined_reference else ())
+                     + (ROOT_COLUMNS if self.refine_root else ())):
             raw[OBS[name]] = True
         self.register_buffer("_raw", raw, persistent=False)
-        self.refine = RefinementUnit(iterations, refine_hidden, activation)
+        self.refine = RefinementUnit(iterations, refine_hidden, activation, root=self.refine_root)
         self.value_norm = RunningNorm((), clip=None) if normalize_value else None
         actor_in = obs_dim + NUM_HINGES + 3 * NUM_BODIES
         self.actor = mlp(actor_in, _sizes("actor_hidden", actor_hidden), self.act_dim, activation, out_gain=0.01)
@@ -312,9 +351,12 @@ class KinematicRefinement(ValueCritic, Policy):
     def refined(self, nobs: torch.Tensor):
         """(refined angles (B, 69), estimated angles (B, 69), dL/dX (B, 24, 3), loss before,
         loss after) of `normalize`d (or raw) observations."""
-        parts = split_observation(nobs)
-        r = self.refine(**parts)
-        return r.angles, parts["angles"], r.grad, r.loss_before, r.loss_after
+        r = self.refinement(nobs)
+        return r.angles, nobs[:, OBS["video/est_dof"]], r.grad, r.loss_before, r.loss_after
+
+    def refinement(self, nobs: torch.Tensor) -> Refinement:
+        """The unit's `Refinement` of `normalize`d (or raw) observations."""
+        return self.refine(**split_observation(nobs, floor=self.refine_root))
 
     def reference_on(self, nobs: torch.Tensor, r: Refinement) -> torch.Tensor:
         """`nobs` with its estimate block (Imitation-v0's goal) re-posed on the refinement `r`:
@@ -343,16 +385,17 @@ class KinematicRefinement(ValueCritic, Policy):
 
     def scored_distribution(self, nobs: torch.Tensor) -> tuple[Normal, dict[str, torch.Tensor]]:
         """The action distribution, with the refined angles (B, 69) it is centred on as
-        `extras["refined_angles"]`: the refinement's supervised loss reuses this forward pass."""
-        parts = split_observation(nobs)
-        r = self.refine(**parts)
-        angles, est, grad = r.angles, parts["angles"], r.grad
+        `extras["refined_angles"]` (and the refined root (B, 3) as `extras["refined_root"]` with
+        `refine_root`): the refinement's supervised loss reuses this forward pass."""
+        r = self.refinement(nobs)
+        angles, est, grad = r.angles, nobs[:, OBS["video/est_dof"]], r.grad
         seen = self.reference_on(nobs, r) if self.refined_reference else nobs
         feat = torch.cat([self.features(seen), angles, GRAD_FEATURE_SCALE * grad.reshape(len(nobs), -1)], -1)
         mu = self.actor(feat)
         offset = (angles - est) / self._residual_unit
         mu = torch.cat([mu[:, :NUM_HINGES] + offset, mu[:, NUM_HINGES:]], -1)
-        return Normal(mu, self.log_std.exp().expand_as(mu), validate_args=False), {"refined_angles": angles}
+        extras = {"refined_angles": angles, **({"refined_root": r.root} if self.refine_root else {})}
+        return Normal(mu, self.log_std.exp().expand_as(mu), validate_args=False), extras
 
     def action_distribution(self, nobs: torch.Tensor) -> Normal:
         return self.distribution(nobs)
@@ -420,7 +463,7 @@ class KinematicRefinement(ValueCritic, Policy):
         true one, both posed by forward kinematics from the estimate's root. `angles`: the
         refined angles when the caller has them already."""
         if angles is None:
-            angles = self.refine(**split_observation(obs))[0]
+            angles = self.refinement(obs).angles
         return self.body_error(obs, angles, truth_angles)
 
     def body_error(self, obs: torch.Tensor, angles: torch.Tensor, truth_angles: torch.Tensor) -> torch.Tensor:
@@ -437,16 +480,28 @@ class KinematicRefinement(ValueCritic, Policy):
         """(B,) mean squared difference (rad^2, wrapped to [-pi, pi)) over the 69 hinges between
         the refined joint angles and the true ones. `angles`: as in `refinement_error`."""
         if angles is None:
-            angles = self.refine(**split_observation(obs))[0]
+            angles = self.refinement(obs).angles
         d = torch.remainder(angles - truth_angles + np.pi, 2 * np.pi) - np.pi
         return d.square().mean(-1)
+
+    def refinement_root_error(self, obs: torch.Tensor, truth_root: torch.Tensor,
+                              root: torch.Tensor | None = None) -> torch.Tensor:
+        """(B,) squared distance (m^2) between the refined root position (the estimate's without
+        `refine_root`) and the true one (`info["next_truth_root_pos"]`, the same frame). `root`: the
+        refined root when the caller has it already."""
+        if root is None:
+            root = self.refinement(obs).root
+        return (root - truth_root).square().sum(-1)
 
 
 # ---------------------------------------------------------------------------------------- training
 TRUTH = "next_truth_dof_pos"  # info: the true joint angles of the frame each observation previews
+TRUTH_ROOT = "next_truth_root_pos"  # and its true root position (the observation's frame)
 # The refinement's supervised losses: (policy method, unit of its root mean square, its scale to that unit).
 REFINE_TARGETS = {"angles": ("refinement_angle_error", "deg", 180.0 / np.pi),
                   "positions": ("refinement_error", "mm", 1000.0)}
+# Each supervised error's scale from its squared unit (rad^2, m^2) to what its root mean square is logged in.
+REFINE_UNITS = {"deg": 180.0 / np.pi, "mm": 1000.0, "root_mm": 1000.0}
 
 
 @dataclasses.dataclass
@@ -524,20 +579,24 @@ class SimPoEPPO(PPO):
         def rms() -> dict[str, float]:
             out = {}
             with torch.no_grad():
-                for method, unit, scale in REFINE_TARGETS.values():
-                    err = torch.cat([getattr(pol, method)(obs[i:i + 4096], truth[i:i + 4096])
-                                     for i in range(0, len(obs), 4096)])
-                    out[unit] = float(err.mean().sqrt() * scale)
-            return out
+                for i in range(0, len(obs), 4096):
+                    r = pol.refinement(obs[i:i + 4096])
+                    for name, err in self._refinement_errors(obs[i:i + 4096], truth[i:i + 4096], r.angles, r.root,
+                                                             every=True).items():
+                        out.setdefault(name, []).append(err)
+            return {unit: float(torch.cat(errs).mean().sqrt() * REFINE_UNITS[unit]) for unit, errs in out.items()}
 
         before = rms()
-        loss_of = getattr(pol, REFINE_TARGETS[cfg.refine_target][0])
         from .rollout import torch_threads
+
+        def loss_of(x, y):
+            r = pol.refinement(x)
+            return sum(self._refinement_errors(x, y, r.angles, r.root).values()).mean()
 
         with torch_threads(self.update_threads):
             for _ in range(cfg.refine_pretrain_epochs):
                 for mb in self._minibatches(data, cfg.batch_size):
-                    loss = sync.loss(lambda: loss_of(mb["obs"], mb["truth"]).mean())
+                    loss = sync.loss(lambda: loss_of(mb["obs"], mb["truth"]))
                     opt.zero_grad(set_to_none=True)
                     sync.backward(loss)
                     torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
@@ -548,16 +607,20 @@ class SimPoEPPO(PPO):
             self.logger.record(f"pretrain/refine_rms_{unit}_before", before[unit])
             self.logger.record(f"pretrain/refine_rms_{unit}_after", after[unit])
         if self.verbose and self.data_parallel.main:
+            root = (f", {before['root_mm']:.1f} -> {after['root_mm']:.1f} mm rms root error" if "root_mm" in after else "")
             print(f"refinement pretraining on {len(obs)} frames ({cfg.refine_target}): {before['mm']:.1f} -> "
-                  f"{after['mm']:.1f} mm rms body error, {before['deg']:.1f} -> {after['deg']:.1f} deg rms joint angle error")
+                  f"{after['mm']:.1f} mm rms body error, {before['deg']:.1f} -> {after['deg']:.1f} deg rms joint angle "
+                  f"error{root}")
         self._collector = None  # the pairs came from stepping the env: the first rollout resets it
-        return {"before_mm": before["mm"], "after_mm": after["mm"], "before_deg": before["deg"], "after_deg": after["deg"]}
+        return {f"{when}_{unit}": value for when, errs in (("before", before), ("after", after))
+                for unit, value in errs.items()}
 
     @torch.no_grad()
     def _pretraining_pairs(self, env, samples: int) -> tuple[torch.Tensor, torch.Tensor]:
         obs, info = env.reset(seed=self.config.seed)
-        if TRUTH not in info:
-            raise ValueError("refine_pretrain_samples needs ground truth (info['next_truth_dof_pos']): train on "
+        keys = self._truth_keys()
+        if any(k not in info for k in keys):
+            raise ValueError(f"refine_pretrain_samples needs ground truth (info[{keys[-1]!r}]): train on "
                              "generated input (motions=), not on estimator files")
         zero = env.unwrapped.reference_action() if hasattr(env.unwrapped, "reference_action") else None
         if zero is None:
@@ -565,7 +628,7 @@ class SimPoEPPO(PPO):
         xs, ys, n = [], [], 0
         while n < samples:
             xs.append(torch.as_tensor(np.asarray(obs), dtype=torch.float32))
-            ys.append(torch.as_tensor(np.asarray(info[TRUTH]), dtype=torch.float32))
+            ys.append(torch.cat([torch.as_tensor(np.asarray(info[k]), dtype=torch.float32) for k in keys], -1))
             n += len(xs[-1])
             obs, _, _, _, info = env.step(zero)  # PD tracking of the estimate; ended worlds autoreset
         return torch.cat(xs)[:samples].to(self.device), torch.cat(ys)[:samples].to(self.device)
@@ -574,9 +637,25 @@ class SimPoEPPO(PPO):
     def _rollout_hooks(self) -> RolloutHooks:
         if self.config.refine_aux_coef <= 0:
             return super()._rollout_hooks()
-        return InfoColumn(TRUTH, NUM_HINGES, self.device, carry=True, missing=(
-            f"refine_aux_coef needs ground truth (info[{TRUTH!r}]): train on generated input (motions=), "
+        keys = self._truth_keys()
+        return InfoColumn(TRUTH, NUM_HINGES + 3 * (len(keys) - 1), self.device, carry=True, sources=keys, missing=(
+            f"refine_aux_coef needs ground truth (info[{keys[-1]!r}]): train on generated input (motions=), "
             "not on estimator files, or set refine_aux_coef=0"))
+
+    def _truth_keys(self) -> tuple[str, ...]:
+        """The info keys of the truth the refinement regresses: the joint angles, and the root's place
+        for a unit that refines it (side by side, (B, 69 [+ 3]))."""
+        return (TRUTH, TRUTH_ROOT) if getattr(self.policy, "refine_root", False) else (TRUTH,)
+
+    def _refinement_errors(self, obs, truth, angles, root, every: bool = False) -> dict[str, torch.Tensor]:
+        """{unit: (B,) squared error} of a refinement (`angles`, `root`) against `truth` (`_truth_keys`'
+        columns): `refine_target`'s (or, `every`, both targets'), and the root's with `refine_root`."""
+        pol = self.policy
+        targets = REFINE_TARGETS.values() if every else [REFINE_TARGETS[self.config.refine_target]]
+        out = {unit: getattr(pol, method)(obs, truth[:, :NUM_HINGES], angles) for method, unit, _ in targets}
+        if pol.refine_root:
+            out["root_mm"] = pol.refinement_root_error(obs, truth[:, NUM_HINGES:], root)
+        return out
 
     def _loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
         coef = self.config.refine_aux_coef
@@ -585,17 +664,17 @@ class SimPoEPPO(PPO):
         ev = self.policy.evaluate_actions(mb["obs"], mb["actions"])
         terms = self._ppo_loss(mb, ev)
         # The stored observations are normalised except the refinement's columns (kept raw).
-        error_of = getattr(self.policy, REFINE_TARGETS[self.config.refine_target][0])
-        error = error_of(mb["obs"], mb[TRUTH], ev.extras["refined_angles"]).mean()
-        self._refine_errors.append(float(error.detach()))
-        return (terms[0] + coef * error, *terms[1:])
+        errors = self._refinement_errors(mb["obs"], mb[TRUTH], ev.extras["refined_angles"], ev.extras.get("refined_root"))
+        errors = {unit: e.mean() for unit, e in errors.items()}
+        for unit, e in errors.items():
+            self._refine_errors.setdefault(unit, []).append(float(e.detach()))
+        return (terms[0] + coef * sum(errors.values()), *terms[1:])
 
     def _update(self, buf: RolloutBuffer) -> None:
-        self._refine_errors: list[float] = []
+        self._refine_errors: dict[str, list[float]] = {}
         super()._update(buf)
-        if self._refine_errors:
-            _, unit, scale = REFINE_TARGETS[self.config.refine_target]
-            self.logger.record(f"train/refine_rms_{unit}", float(np.sqrt(np.mean(self._refine_errors)) * scale))
+        for unit, errs in self._refine_errors.items():
+            self.logger.record(f"train/refine_rms_{unit}", float(np.sqrt(np.mean(errs)) * REFINE_UNITS[unit]))
 
     def _extra_state(self) -> dict:
         return {"refine_pretrained": self.refine_pretrained}

@@ -88,6 +88,16 @@ def _true_root_orientation(v: VideoInput) -> VideoInput:
     return dataclasses.replace(v, local_quat=q)
 
 
+def _true_root_position(v: VideoInput) -> VideoInput:
+    return dataclasses.replace(v, root_pos=v.truth.root_pos.copy())
+
+
+def _true_root_height(v: VideoInput) -> VideoInput:
+    root = v.root_pos.copy()
+    root[:, 2] = v.truth.root_pos[:, 2]
+    return dataclasses.replace(v, root_pos=root)
+
+
 def knobs(args) -> None:
     from agents.run import _load_target  # the command line's own lookup of runs and names
 
@@ -98,7 +108,11 @@ def knobs(args) -> None:
     rows = [(name, degraded(lib, indices, EstimatorNoise.make(knob))) for name, knob in KNOB_ROWS]
     default = rows[0][1]
     rows += [("every error, true joint rotations", [_true_joints(v) for v in default]),
-             ("every error, true root orientation", [_true_root_orientation(v) for v in default])]
+             ("every error, true root orientation", [_true_root_orientation(v) for v in default]),
+             ("every error, true root position", [_true_root_position(v) for v in default]),
+             ("every error, true root height", [_true_root_height(v) for v in default]),
+             ("every error, true joint rotations and root position",
+              [_true_root_position(_true_joints(v)) for v in default])]
     print(f"**The tracker ({args.tracker}) on {len(indices)} {args.split} sequences**\n")
     print("| estimate | no fall | MPJPE | PA-MPJPE |\n|---|---|---|---|")
     for name, videos in rows:
@@ -148,6 +162,8 @@ def step0(args) -> None:
         if target is not None:
             out = agent.pretrain_refinement(recipe["agent"]["hyperparams"]["refine_pretrain_samples"])
             errors = (f"{out['before_mm']:.1f} -> {out['after_mm']:.1f}", f"{out['before_deg']:.1f} -> {out['after_deg']:.1f}")
+            if "after_root_mm" in out:
+                errors = (f"{errors[0]} (root {out['before_root_mm']:.1f} -> {out['after_root_mm']:.1f})", errors[1])
         s = smpl_envs.evaluate(agent, "SMPL/VideoPose-v0", motions=args.motions, num_envs=args.num_envs,
                                progress=False).summary
         name = "untrained (damped Gauss-Newton)" if target is None else f"pretrained on {target}"

@@ -627,7 +627,7 @@ def test_the_supervised_loss_during_ppo_pairs_each_observation_with_its_truth_an
     from agents import PPO
     with torch.no_grad():
         mb = {k: v[:64] for k, v in data.items()}
-        model._refine_errors = []
+        model._refine_errors = {}
         expected = PPO._loss(model, mb)[0] + 1000.0 * model.policy.refinement_angle_error(mb["obs"], mb[TRUTH]).mean()
         assert float(model._loss(mb)[0]) == pytest.approx(float(expected), rel=1e-5)
 
@@ -642,6 +642,39 @@ def test_the_supervised_loss_during_ppo_pairs_each_observation_with_its_truth_an
         SimPoEPPO(ID, n_envs=2, env_kwargs={"video": lib}, policy_kwargs={"iterations": 1, "refine_hidden": [8],
                   "actor_hidden": [8], "critic_hidden": [8]}, refine_aux_coef=1.0, n_steps=4, batch_size=8,
                   verbose=0, tensorboard=False, device="cpu").learn(8, progress_bar=False)
+
+
+def test_a_unit_that_refines_the_root_learns_where_the_estimate_puts_it():
+    from agents import SimPoEPPO
+    from agents.simpoe import OBS, TRUTH, split_observation
+
+    kwargs = dict(policy_kwargs={"iterations": 1, "refine_hidden": [64], "actor_hidden": [32], "critic_hidden": [32],
+                                 "refine_root": True, "refined_reference": True},
+                  refine_aux_coef=1000.0, n_steps=16, batch_size=64, verbose=0, seed=0, tensorboard=False, device="cpu")
+    # Without noise the truth stored beside each observation is the estimate: its angles and root.
+    model = SimPoEPPO(ID, n_envs=4, env_kwargs={"motions": ["walk", "run"], "noise_scale": 0.0}, **kwargs)
+    model._start_collector(seed=0)
+    data = model._collect().transitions()
+    assert data[TRUTH].shape[1] == 69 + 3
+    np.testing.assert_allclose(data[TRUTH][:, 69:], data["obs"][:, OBS["estimate/ref_pos"]][:, :3], atol=1e-5)
+    np.testing.assert_allclose(data[TRUTH][:, :69], data["obs"][:, OBS["video/est_dof"]], atol=1e-6)
+    model.close()
+    # With the estimator's errors (the estimate sinks and drifts), regression moves the root towards the truth,
+    # and the actor's goal moves with it.
+    model = SimPoEPPO(ID, n_envs=8, env_kwargs={"motions": ["walk", "run", "turn"]}, refine_pretrain_epochs=30, **kwargs)
+    out = model.pretrain_refinement(2048)
+    assert out["after_root_mm"] < 0.8 * out["before_root_mm"]
+    assert out["after_deg"] < out["before_deg"]
+    obs = torch.as_tensor(model.env.reset(seed=1)[0])
+    pol = model.policy
+    with torch.no_grad():
+        r = pol.refinement(pol.normalize(obs))
+    est_root = obs[:, OBS["estimate/ref_pos"]][:, :3]
+    assert (r.root - est_root).norm(dim=-1).mean() > 0.005
+    np.testing.assert_allclose(r.pos[:, 0], r.root, atol=1e-6)
+    with pytest.raises(ValueError, match="needs the floor's height"):
+        pol.refine(**split_observation(obs))
+    model.close()
 
 
 @pytest.mark.slow

@@ -54,7 +54,9 @@ average more than `termination_distance` (0.5 m; None disables) from the estimat
 truncated at the sequence's last frame.
 
 `info`: the reward factors, `est_body_pos` and (with ground truth) `truth_body_pos` (N, 24, 3)
-of the current frame, `next_est_dof_pos` and `next_truth_dof_pos` (N, 69), `foot_points`
+of the current frame, `next_est_dof_pos` and `next_truth_dof_pos` (N, 69), (with ground truth)
+`next_truth_root_pos` (N, 3: the next frame's true pelvis relative to the simulated one, heading
+frame, as the observation's estimate root), `foot_points`
 (N, 32, 3), `reprojection_error` (N, px, confidence-weighted mean over keypoints) and
 `keypoint_weight` (N, the confidences' sum), `fallen`, `motion_id`, `motion_time`, and the core's.
 
@@ -72,7 +74,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector.utils import batch_space
 
-from ..features import BodyState, heading_rotation, rotation_angle, tracking_obs, xp
+from ..features import BodyState, heading_rotation, rotation_angle, to_heading, tracking_obs, xp
 from ..humanoid.skeleton import HINGE_NAMES, KD, NUM_HINGES
 from ..sim.cpu import DAMPING_SUFFIX
 from ..video_eval import VideoProtocol
@@ -270,8 +272,12 @@ class VideoPoseVecEnv(HumanoidVecEnv):
                 "reprojection_error": weighted_mean(px, conf), "keypoint_weight": conf.sum(-1),
                 "fallen": fallen(body)}
         if self._truth is not None:
+            nxt = self.ref.next_frame()
             info["truth_body_pos"] = self._truth.body_pos[f]
-            info["next_truth_dof_pos"] = self._truth.dof_pos[self.ref.next_frame()]
+            info["next_truth_dof_pos"] = self._truth.dof_pos[nxt]
+            # In the observation's frame of the estimate's root: a refinement of the root learns from it.
+            info["next_truth_root_pos"] = b.float32(to_heading(self._truth.body_pos[nxt][:, 0] - body.pos[:, 0],
+                                                               heading_rotation(body.rot[:, 0])))
         return info
 
     def _markers(self, world):

@@ -386,7 +386,8 @@ class KinematicRefinement(ValueCritic, Policy):
     def scored_distribution(self, nobs: torch.Tensor) -> tuple[Normal, dict[str, torch.Tensor]]:
         """The action distribution, with the refined angles (B, 69) it is centred on as
         `extras["refined_angles"]` (and the refined root (B, 3) as `extras["refined_root"]` with
-        `refine_root`): the refinement's supervised loss reuses this forward pass."""
+        `refine_root`): the refinement's supervised loss reuses this forward pass. `extras["offset"]`
+        (B, act_dim): the part of the mean that is the refinement's offset (zero beyond the 69)."""
         r = self.refinement(nobs)
         angles, est, grad = r.angles, nobs[:, OBS["video/est_dof"]], r.grad
         seen = self.reference_on(nobs, r) if self.refined_reference else nobs
@@ -394,7 +395,8 @@ class KinematicRefinement(ValueCritic, Policy):
         mu = self.actor(feat)
         offset = (angles - est) / self._residual_unit
         mu = torch.cat([mu[:, :NUM_HINGES] + offset, mu[:, NUM_HINGES:]], -1)
-        extras = {"refined_angles": angles, **({"refined_root": r.root} if self.refine_root else {})}
+        extras = {"refined_angles": angles, "offset": torch.cat([offset, torch.zeros_like(mu[:, NUM_HINGES:])], -1),
+                  **({"refined_root": r.root} if self.refine_root else {})}
         return Normal(mu, self.log_std.exp().expand_as(mu), validate_args=False), extras
 
     def action_distribution(self, nobs: torch.Tensor) -> Normal:
@@ -529,6 +531,15 @@ class SimPoEPPOConfig(PPOConfig):
     Why: PPO's gradient alone undoes the pretraining (measured, positions: 28 mm rms body error
     after it, 62 mm after 5M steps of joint training, 36 mm with this at 1000 after 0.85M)"""
 
+    bounds_on_refinement: bool = True
+    """the bounds loss on the whole action mean, the refinement's offset included (True: PPO's
+    way, as the policies before 2026-12-06 trained), or on the actor's own part only (False). Where
+    the refined angles leave the residual range (0.2 % of the action numbers at step 0, but far:
+    a bounds loss of 0.5 a sample) the env clips the action anyway; on the whole mean the loss's
+    gradient (x bounds_loss_coef) pulls the refinement back towards the estimate and, through the
+    clipped gradient norm, shrinks PPO's own step (the norm went from ~8 to 60-110 when the policy
+    loss came in)"""
+
     def __post_init__(self) -> None:
         super().__post_init__()
         for name in ("refine_pretrain_samples", "refine_pretrain_epochs"):
@@ -659,10 +670,12 @@ class SimPoEPPO(PPO):
 
     def _loss(self, mb: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
         coef = self.config.refine_aux_coef
-        if coef <= 0 or self.policy.iterations == 0:
-            return super()._loss(mb)
         ev = self.policy.evaluate_actions(mb["obs"], mb["actions"])
+        if not self.config.bounds_on_refinement and ev.extras and "offset" in ev.extras:
+            ev = ev._replace(mean=ev.mean - ev.extras["offset"])  # the mean serves the bounds loss only
         terms = self._ppo_loss(mb, ev)
+        if coef <= 0 or self.policy.iterations == 0:
+            return terms
         # The stored observations are normalised except the refinement's columns (kept raw).
         errors = self._refinement_errors(mb["obs"], mb[TRUTH], ev.extras["refined_angles"], ev.extras.get("refined_root"))
         errors = {unit: e.mean() for unit, e in errors.items()}

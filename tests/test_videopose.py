@@ -644,6 +644,36 @@ def test_the_supervised_loss_during_ppo_pairs_each_observation_with_its_truth_an
                   verbose=0, tensorboard=False, device="cpu").learn(8, progress_bar=False)
 
 
+def test_the_bounds_loss_can_leave_the_refinements_offset_out(video_obs):
+    from agents import SimPoEPPO
+
+    obs, _, _ = video_obs
+    model = SimPoEPPO(ID, n_envs=2, env_kwargs={"motions": ["walk"]}, bounds_on_refinement=False, verbose=0,
+                      tensorboard=False, device="cpu", policy_kwargs={"iterations": 2, "refine_hidden": [16],
+                                                                      "actor_hidden": [16], "critic_hidden": [16]})
+    pol = model.policy
+    with torch.no_grad():
+        pol.refine.correction[-1].bias.fill_(0.5)  # refined angles beyond the residual range: offsets past the bounds
+        nobs = pol.normalize(obs)
+        dist, extras = pol.scored_distribution(nobs)
+        own = dist.mean - extras["offset"]
+        np.testing.assert_allclose(own, pol.actor(torch.cat([pol.features(nobs), extras["refined_angles"],
+                                                            100.0 * pol.refined(nobs)[2].reshape(len(obs), -1)], -1)),
+                                   atol=1e-5)
+        actions = dist.mean.clamp(-1, 1)
+        mb = {"obs": nobs, "actions": actions, "log_probs": dist.log_prob(actions).sum(-1),
+              "advantages": torch.zeros(len(obs)), "returns": torch.zeros(len(obs)), "values": torch.zeros(len(obs))}
+
+        def bounds(mu):
+            return ((mu - 1.1).clamp(min=0).square() + (mu + 1.1).clamp(max=0).square()).sum(-1).mean()
+
+        assert bounds(dist.mean) > 1.0
+        assert float(model._loss(mb)[4]) == pytest.approx(float(bounds(own)), rel=1e-5)
+        model.config.bounds_on_refinement = True
+        assert float(model._loss(mb)[4]) == pytest.approx(float(bounds(dist.mean)), rel=1e-5)
+    model.close()
+
+
 def test_a_unit_that_refines_the_root_learns_where_the_estimate_puts_it():
     from agents import SimPoEPPO
     from agents.simpoe import OBS, TRUTH, split_observation

@@ -351,8 +351,9 @@ def test_the_warp_backend_matches_the_cpu_backend(options):
     ow, _ = w.reset(seed=0, options=begin)
     oc, _ = c.reset(seed=0, options=begin)
     assert isinstance(ow, torch.Tensor) and np.abs(ow.cpu().numpy() - oc).max() < 1e-4
-    step_backends_alike(w, c, steps=6, info_keys=("est_body_pos", "truth_body_pos", "foot_points",
-                                                  "reprojection_error", "keypoint_weight", "reward_keypoint"))
+    step_backends_alike(w, c, steps=6, info_keys=("est_body_pos", "truth_body_pos", "next_truth_root_pos",
+                                                  "foot_points", "reprojection_error", "keypoint_weight",
+                                                  "reward_keypoint"))
     if options:
         assert w.sim.pd_scales.shape == (2, w.substeps, 2) and w.sim.root_wrench.abs().max() > 1.0
     w.close(), c.close()

@@ -183,19 +183,13 @@ class KinematicRefinement(ValueCritic, Policy):
         b = len(nobs)
         move = (r.pos - r.est_pos).reshape(b, -1)
         turn = r.rot @ r.est_rot.swapaxes(-1, -2)
-
-        def turned(name):
+        out = nobs.clone()
+        for name in ("estimate/diff_pos", "estimate/ref_pos"):
+            out[:, OBS[name]] = nobs[:, OBS[name]] + move
+        for name in ("estimate/diff_rot", "estimate/ref_rot"):
             m = rot6d_to_matrix(nobs[:, OBS[name]].reshape(b, NUM_BODIES, 6))
-            return (turn @ m)[..., :, :2].reshape(b, -1)
-
-        new = {"estimate/diff_pos": nobs[:, OBS["estimate/diff_pos"]] + move,
-               "estimate/ref_pos": nobs[:, OBS["estimate/ref_pos"]] + move,
-               "estimate/diff_rot": turned("estimate/diff_rot"), "estimate/ref_rot": turned("estimate/ref_rot")}
-        cols, at = [], 0
-        for name, sl in sorted(((n, OBS[n]) for n in new), key=lambda kv: kv[1].start):
-            cols += [nobs[:, at:sl.start], new[name]]
-            at = sl.stop
-        return torch.cat(cols + [nobs[:, at:]], -1)
+            out[:, OBS[name]] = (turn @ m)[..., :, :2].reshape(b, -1)
+        return out
 
     def distribution(self, nobs: torch.Tensor) -> Normal:
         return self.scored_distribution(nobs)[0]
@@ -316,9 +310,8 @@ class KinematicRefinement(ValueCritic, Policy):
 # ---------------------------------------------------------------------------------------- training
 TRUTH = "next_truth_dof_pos"  # info: the true joint angles of the frame each observation previews
 TRUTH_ROOT = "next_truth_root_pos"  # and its true root position (the observation's frame)
-# The refinement's supervised losses: (policy method, unit of its root mean square, its scale to that unit).
-REFINE_TARGETS = {"angles": ("refinement_angle_error", "deg", 180.0 / np.pi),
-                  "positions": ("refinement_error", "mm", 1000.0)}
+# The refinement's supervised losses: (policy method, unit of its root mean square).
+REFINE_TARGETS = {"angles": ("refinement_angle_error", "deg"), "positions": ("refinement_error", "mm")}
 # Each supervised error's scale from its squared unit (rad^2, m^2) to what its root mean square is logged in.
 REFINE_UNITS = {"deg": 180.0 / np.pi, "mm": 1000.0, "root_mm": 1000.0}
 
@@ -479,7 +472,7 @@ class SimPoEPPO(PPO):
         columns): `refine_target`'s (or, `every`, both targets'), and the root's with `refine_root`."""
         pol = self.policy
         targets = REFINE_TARGETS.values() if every else [REFINE_TARGETS[self.config.refine_target]]
-        out = {unit: getattr(pol, method)(obs, truth[:, :NUM_HINGES], angles) for method, unit, _ in targets}
+        out = {unit: getattr(pol, method)(obs, truth[:, :NUM_HINGES], angles) for method, unit in targets}
         if pol.refine_root:
             out["root_mm"] = pol.refinement_root_error(obs, truth[:, NUM_HINGES:], root)
         return out

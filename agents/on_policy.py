@@ -224,10 +224,16 @@ class OnPolicyAlgorithm:
             _check_policy_spaces(policy, self.obs_dim, self.action_space)
         self.policy = policy.to(self.device)
         self.policy_class, self.policy_kwargs = type(policy), policy.init_kwargs
-        params = [p for p in self.policy.parameters() if p.requires_grad]  # not frozen parts
-        self.optimizer = adam(params, lr=self.config.learning_rate, eps=1e-5)
+        self.optimizer = adam(self._param_groups(), lr=self.config.learning_rate, eps=1e-5)
         self._collector = None
         self._grad_syncs = {}
+
+    def _param_groups(self) -> list[dict]:
+        """The optimiser's parameter groups: the policy's trainable parameters (not its frozen
+        parts) in one group. A subclass may split them, each group with an `lr_scale` (a factor
+        on the learning rate and its schedule); the group count is part of a checkpoint's
+        optimiser state."""
+        return [{"params": [p for p in self.policy.parameters() if p.requires_grad], "lr_scale": 1.0}]
 
     def set_env(self, env, n_envs: int = 1, env_kwargs: dict | None = None,
                 override_settings: Iterable[str] = ()) -> None:
@@ -394,7 +400,7 @@ class OnPolicyAlgorithm:
         if self.config.lr_schedule == "linear":
             lr *= max(1.0 - self.num_timesteps / max(target, 1), 0.0)
         for g in self.optimizer.param_groups:
-            g["lr"] = lr
+            g["lr"] = lr * g.get("lr_scale", 1.0)
         self.logger.record("train/learning_rate", lr)
 
     @torch.no_grad()
@@ -514,7 +520,15 @@ class OnPolicyAlgorithm:
         agent._build(sp["obs_dim"], box, policy)
         agent.policy.load_state_dict(ckpt["policy"])
         if ckpt["optimizer"] is not None:  # None: a policy saved to ship (save(optimizer=False))
+            groups = len(ckpt["optimizer"]["param_groups"])
+            if groups != len(agent.optimizer.param_groups):
+                raise ValueError(f"{path}'s optimiser has {groups} parameter group(s), these settings give "
+                                 f"{len(agent.optimizer.param_groups)}: a setting that splits the parameters "
+                                 "(such as SimPoEPPO's refine_lr_scale) cannot change on a resume; start a new "
+                                 "run from the checkpoint instead (agent.init)")
             agent.optimizer.load_state_dict(ckpt["optimizer"])
+            for g, want in zip(agent.optimizer.param_groups, agent._param_groups()):
+                g["lr_scale"] = want["lr_scale"]  # these settings' scale (a checkpoint before them has none)
         agent.num_timesteps, agent.iteration = ckpt["num_timesteps"], ckpt["iteration"]
         agent.episodes.extend(tuple(e) for e in ckpt["episodes"])
         agent.env_id, agent.env_kwargs = ckpt["env"]["id"], dict(ckpt["env"]["kwargs"] or {})

@@ -6,11 +6,12 @@ import torch
 
 
 def adam(params, **kwargs) -> torch.optim.Adam:
-    """Adam with its fused kernel where torch has one for the device (CPU, CUDA): one pass over
-    all parameters instead of a dozen ops per tensor, a seventh of the time per step here
-    (measured: 3.7 ms to 0.5 ms for a 512-256 actor and critic on 2 cores)."""
-    params = list(params)
-    fused = bool(params) and all(p.device.type in ("cpu", "cuda") and p.is_floating_point() for p in params)
+    """Adam (over tensors or parameter groups) with its fused kernel where torch has one for the
+    device (CPU, CUDA): one pass over all parameters instead of a dozen ops per tensor, a seventh
+    of the time per step here (measured: 3.7 ms to 0.5 ms for a 512-256 actor and critic on 2 cores)."""
+    params = list(params)  # tensors, or parameter groups (dicts with "params")
+    tensors = [p for g in params for p in g["params"]] if params and isinstance(params[0], dict) else params
+    fused = bool(tensors) and all(p.device.type in ("cpu", "cuda") and p.is_floating_point() for p in tensors)
     return torch.optim.Adam(params, fused=fused, **kwargs)
 
 

@@ -349,8 +349,17 @@ class SimPoEPPOConfig(PPOConfig):
     action anyway, and on the whole mean the loss's gradient (x bounds_loss_coef) pulls the
     refinement back towards the estimate"""
 
+    refine_lr_scale: float = 1.0
+    """the refinement unit's learning rate in PPO as a factor on `learning_rate` (0: fixed after
+    its pretraining). Why below 1: the refined angles are the action mean's offset, and with PHC's
+    action std (0.055) a shift of 0.01 in every action number is a KL of about 1, so at 1 the
+    refinement's own steps (its supervised loss alone, in the critic warm-up: approx. KL
+    0.77, 64 % of samples clipped) leave most of PPO's samples outside its clip range"""
+
     def __post_init__(self) -> None:
         super().__post_init__()
+        if not self.refine_lr_scale >= 0:
+            raise ValueError(f"refine_lr_scale must be >= 0, got {self.refine_lr_scale!r}")
         for name in ("refine_pretrain_samples", "refine_pretrain_epochs"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
@@ -372,6 +381,14 @@ class SimPoEPPO(PPO):
     def __init__(self, *args, **kwargs):
         self.refine_pretrained = False
         super().__init__(*args, **kwargs)
+
+    def _param_groups(self) -> list[dict]:
+        scale = self.config.refine_lr_scale
+        if scale == 1.0 or not isinstance(self.policy, KinematicRefinement):
+            return super()._param_groups()
+        named = [(n, p) for n, p in self.policy.named_parameters() if p.requires_grad]
+        return [{"params": [p for n, p in named if not n.startswith("refine.")], "lr_scale": 1.0},
+                {"params": [p for n, p in named if n.startswith("refine.")], "lr_scale": scale}]
 
     def learn(self, total_timesteps: int, *args, **kwargs):
         if self.config.refine_pretrain_samples and not self.refine_pretrained:

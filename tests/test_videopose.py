@@ -675,6 +675,41 @@ def test_the_bounds_loss_can_leave_the_refinements_offset_out(video_obs):
     model.close()
 
 
+def test_the_refinements_learning_rate_scale_holds_it_or_slows_it_and_survives_a_resume(tmp_path):
+    from agents import SimPoEPPO
+
+    def make(scale, **kw):
+        return SimPoEPPO(ID, n_envs=4, env_kwargs={"motions": ["walk", "run"]}, refine_lr_scale=scale,
+                         policy_kwargs={"iterations": 2, "refine_hidden": [16], "actor_hidden": [16],
+                                        "critic_hidden": [16]}, refine_aux_coef=1000.0, n_steps=16, batch_size=32,
+                         learning_rate=1e-3, lr_schedule="linear", verbose=0, seed=0, tensorboard=False,
+                         device="cpu", **kw)
+
+    model = make(0.0)
+    refine = {k: v.clone() for k, v in model.policy.refine.state_dict().items()}
+    actor = {k: v.clone() for k, v in model.policy.actor.state_dict().items()}
+    model.learn(128, progress_bar=False)
+    # Its supervised loss and PPO's reach it, but at a scale of 0 it stays as it was; the actor learns.
+    for k, v in model.policy.refine.state_dict().items():
+        torch.testing.assert_close(v, refine[k], rtol=0, atol=0)
+    assert any(not torch.equal(v, actor[k]) for k, v in model.policy.actor.state_dict().items())
+    model.close()
+
+    model = make(0.25)
+    model.learn(128, progress_bar=False)
+    main, refining = model.optimizer.param_groups
+    assert {id(p) for p in refining["params"]} == {id(p) for p in model.policy.refine.parameters()}
+    assert 0 < main["lr"] < 1e-3 and refining["lr"] == pytest.approx(0.25 * main["lr"])
+    model.save(tmp_path / "scaled.pt")
+    model.close()
+    loaded = SimPoEPPO.load(tmp_path / "scaled.pt", env=None, device="cpu")
+    assert [g["lr_scale"] for g in loaded.optimizer.param_groups] == [1.0, 0.25]
+    with pytest.raises(ValueError, match="2 parameter group.*refine_lr_scale"):
+        SimPoEPPO.load(tmp_path / "scaled.pt", env=None, device="cpu", refine_lr_scale=1.0)
+    with pytest.raises(ValueError, match="refine_lr_scale must be >= 0"):
+        make(-0.1)
+
+
 def test_a_unit_that_refines_the_root_learns_where_the_estimate_puts_it():
     from agents import SimPoEPPO
     from agents.simpoe import OBS, TRUTH, split_observation

@@ -351,10 +351,11 @@ class SimPoEPPOConfig(PPOConfig):
 
     refine_lr_scale: float = 1.0
     """the refinement unit's learning rate in PPO as a factor on `learning_rate` (0: fixed after
-    its pretraining). Why below 1: the refined angles are the action mean's offset, and with PHC's
-    action std (0.055) a shift of 0.01 in every action number is a KL of about 1, so at 1 the
-    refinement's own steps (its supervised loss alone, in the critic warm-up: approx. KL
-    0.77, 64 % of samples clipped) leave most of PPO's samples outside its clip range"""
+    its pretraining). The refined angles are the action mean's offset, and with PHC's action std
+    (0.055) a shift of 0.01 in every action number is a KL of about 1: at 1 the refinement's own
+    steps leave most of PPO's samples outside its clip range (its supervised loss alone, in the
+    critic warm-up: approx. KL 0.80, 64 % clipped), at 0.1 far fewer (0.027, 25 %). Measured no
+    better for it over 0.5M steps (docs/tasks/videopose.md), so 1 stays the recipe's"""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -387,6 +388,8 @@ class SimPoEPPO(PPO):
         if scale == 1.0 or not isinstance(self.policy, KinematicRefinement):
             return super()._param_groups()
         named = [(n, p) for n, p in self.policy.named_parameters() if p.requires_grad]
+        if not any(n.startswith("refine.") for n, _ in named):  # no unit (iterations 0) to scale
+            return super()._param_groups()
         return [{"params": [p for n, p in named if not n.startswith("refine.")], "lr_scale": 1.0},
                 {"params": [p for n, p in named if n.startswith("refine.")], "lr_scale": scale}]
 

@@ -384,14 +384,12 @@ class SimPoEPPO(PPO):
         super().__init__(*args, **kwargs)
 
     def _param_groups(self) -> list[dict]:
-        scale = self.config.refine_lr_scale
-        if scale == 1.0 or not isinstance(self.policy, KinematicRefinement):
+        trainable = [(n.startswith("refine."), p) for n, p in self.policy.named_parameters() if p.requires_grad]
+        unit = [p for refine, p in trainable if refine]
+        if self.config.refine_lr_scale == 1.0 or not unit:  # nothing to scale (no unit: iterations 0)
             return super()._param_groups()
-        named = [(n, p) for n, p in self.policy.named_parameters() if p.requires_grad]
-        if not any(n.startswith("refine.") for n, _ in named):  # no unit (iterations 0) to scale
-            return super()._param_groups()
-        return [{"params": [p for n, p in named if not n.startswith("refine.")], "lr_scale": 1.0},
-                {"params": [p for n, p in named if n.startswith("refine.")], "lr_scale": scale}]
+        return [{"params": [p for refine, p in trainable if not refine], "lr_scale": 1.0},
+                {"params": unit, "lr_scale": self.config.refine_lr_scale}]
 
     def learn(self, total_timesteps: int, *args, **kwargs):
         if self.config.refine_pretrain_samples and not self.refine_pretrained:

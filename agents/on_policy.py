@@ -73,6 +73,10 @@ class OnPolicyConfig(AgentConfig):
     """Adam step size"""
     lr_schedule: str = "constant"
     """"constant", or "linear" decay to zero at the end of `learn`'s budget"""
+    lr_decay_from: float = 0.0
+    """share of the budget "linear" holds the rate constant before it starts to fall (0: it falls
+    from the first step; 0.67: constant for two thirds, then down to zero, as the stable-then-decay
+    schedules of language-model training do)"""
     gamma: float = 0.99
     """discount (PHC: 0.99)"""
     gae_lambda: float = 0.95
@@ -89,8 +93,19 @@ class OnPolicyConfig(AgentConfig):
         super().__post_init__()
         if self.lr_schedule not in ("constant", "linear"):
             raise ValueError(f"lr_schedule must be 'constant' or 'linear', got {self.lr_schedule!r}")
+        if not 0.0 <= self.lr_decay_from < 1.0:
+            raise ValueError(f"lr_decay_from must be a share of the budget in [0, 1), got {self.lr_decay_from!r}")
         if self.exploration_hold < 1:
             raise ValueError(f"exploration_hold must be a whole number of steps >= 1, got {self.exploration_hold!r}")
+
+
+def scheduled_learning_rate(config: OnPolicyConfig, timesteps: int, target: int) -> float:
+    """The Adam step size after `timesteps` of a budget of `target` samples, as `config` schedules it."""
+    lr = config.learning_rate
+    if config.lr_schedule == "linear":
+        start = config.lr_decay_from * target
+        lr *= min(max((target - timesteps) / max(target - start, 1.0), 0.0), 1.0)
+    return lr
 
 
 def resolve_device(device: str | torch.device, name: str = "device") -> torch.device:
@@ -396,9 +411,7 @@ class OnPolicyAlgorithm:
         return minibatches(data, batch_size, self.data_parallel.minibatch_count(n, batch_size))
 
     def _set_learning_rate(self, target: int) -> None:
-        lr = self.config.learning_rate
-        if self.config.lr_schedule == "linear":
-            lr *= max(1.0 - self.num_timesteps / max(target, 1), 0.0)
+        lr = scheduled_learning_rate(self.config, self.num_timesteps, target)
         for g in self.optimizer.param_groups:
             g["lr"] = lr * g.get("lr_scale", 1.0)
         self.logger.record("train/learning_rate", lr)

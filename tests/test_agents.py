@@ -353,6 +353,19 @@ def test_settings_are_one_dataclass_per_agent():
         PPO(None, disc_hidden=(8,))
     with pytest.raises(ValueError, match="lr_schedule"):
         PPO(None, lr_schedule="cosine")
+    with pytest.raises(ValueError, match="lr_decay_from"):
+        PPO(None, lr_schedule="linear", lr_decay_from=1.0)
+
+
+def test_learning_rate_schedules():
+    from agents.on_policy import scheduled_learning_rate
+    constant = PPO(None, learning_rate=1e-3).config
+    assert [scheduled_learning_rate(constant, t, 100) for t in (0, 50, 100)] == [1e-3] * 3
+    linear = PPO(None, learning_rate=1e-3, lr_schedule="linear").config
+    assert [scheduled_learning_rate(linear, t, 100) for t in (0, 50, 100, 150)] == pytest.approx([1e-3, 5e-4, 0, 0])
+    # Held for the first 60 %, then down to zero over the last 40 %.
+    held = PPO(None, learning_rate=1e-3, lr_schedule="linear", lr_decay_from=0.6).config
+    assert [scheduled_learning_rate(held, t, 100) for t in (0, 60, 80, 100)] == pytest.approx([1e-3, 1e-3, 5e-4, 0])
 
 
 def test_policy_can_be_built_apart_and_handed_in(tmp_path):

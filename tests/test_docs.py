@@ -63,7 +63,7 @@ def test_readme_links_into_the_docs_land_on_real_pages_and_anchors(site):
 
 
 def test_readme_is_short():
-    assert len(README.read_text().splitlines()) <= 250
+    assert len(README.read_text().splitlines()) <= 160  # the rest lives in docs/ (docs/status.md)
 
 
 def test_readme_test_command_is_what_ci_runs():

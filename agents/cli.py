@@ -19,7 +19,8 @@
     smpl-envs perpetual runs/pmcp_corpus/pmcp.pt        # chained clips, shoves: falls, recoveries
 
 This module parses the command line and hands each command to `agents.run`, which holds what a
-run is (its directory, locking, stopping and resuming, evaluation, videos) and documents it.
+run is (its directory, locking, stopping and resuming) and documents it, or to
+`agents.checkpoint_commands` (evaluation, videos and generation from a checkpoint).
 Mistakes in what the user typed end in one `error: ...` line and exit status 2; a full disk in
 one `error:` line naming the file and exit status 74 (training stops with what it had saved and
 prints the `--resume` command); anything else is a bug and keeps its traceback.
@@ -34,7 +35,7 @@ from pathlib import Path
 
 from smpl_envs.backend import BACKENDS, MissingExtraError
 
-from . import distributed, run
+from . import checkpoint_commands, distributed, run
 from .checkpoint import NO_SPACE
 from .plot import EmptyLogError, plot_run, plot_runs
 from .recipes import RecipeError, available_recipes, parse_override, recipe_description, recipe_dirs
@@ -245,19 +246,21 @@ def cmd_eval(args) -> int:
     options = dict(parse_override(o) for o in args.options)
     options.update({k: v for k, v in (("threshold", args.threshold), ("episodes", args.episodes)) if v is not None})
     motions = args.motions[0] if args.motions and len(args.motions) == 1 else args.motions
-    return run.evaluate_checkpoint(args.target, which=args.checkpoint, motions=motions, num_envs=args.num_envs,
-                                   options=options, out=args.out, device=args.device, progress=not args.no_progress)
+    return checkpoint_commands.evaluate_checkpoint(
+        args.target, which=args.checkpoint, motions=motions, num_envs=args.num_envs, options=options, out=args.out,
+        device=args.device, progress=not args.no_progress)
 
 
 def cmd_record(args) -> int:
-    return run.record_checkpoint(args.target, which=args.checkpoint, steps=args.steps, motions=args.motions,
-                                 out=args.out, seed=args.seed, device=args.device, progress=not args.no_progress)
+    return checkpoint_commands.record_checkpoint(
+        args.target, which=args.checkpoint, steps=args.steps, motions=args.motions, out=args.out, seed=args.seed,
+        device=args.device, progress=not args.no_progress)
 
 
 def cmd_generate(args) -> int:
-    return run.generate_checkpoint(args.target, which=args.checkpoint, seconds=args.seconds, seed=args.seed,
-                                   noise_scale=args.noise_scale, motions=args.motions, out=args.out,
-                                   device=args.device, progress=not args.no_progress)
+    return checkpoint_commands.generate_checkpoint(
+        args.target, which=args.checkpoint, seconds=args.seconds, seed=args.seed, noise_scale=args.noise_scale,
+        motions=args.motions, out=args.out, device=args.device, progress=not args.no_progress)
 
 
 def cmd_pmcp(args) -> int:

@@ -55,6 +55,7 @@ from typing import Any, Iterable
 
 import yaml
 
+from . import checkpoint_commands
 from . import run as runs
 from .checkpoint import newest_readable_checkpoint
 from .recipes import (RecipeError, RunLock, apply_overrides, find_checkpoint, load_recipe, parse_override,
@@ -218,7 +219,7 @@ def evaluate_as(agent, env_id: str, motions=None, num_envs: int = 8, progress: b
     import smpl_envs
 
     if agent.env_id == env_id:
-        return runs.evaluate_agent(agent, motions, num_envs, progress, **options)
+        return checkpoint_commands.evaluate_agent(agent, motions, num_envs, progress, **options)
     act = lambda obs: agent.predict(obs)[0]  # noqa: E731 (no training record: the settings come below)
     return smpl_envs.evaluate(act, env=env_id, motions=motions, num_envs=num_envs, progress=progress,
                               env_kwargs=settings_for(agent, env_id), **options)
@@ -479,7 +480,7 @@ class Pipeline:
         result = evaluate_as(agent, IMITATION, self.spec["motions"], ev["num_envs"], self.progress,
                              threshold=ev["threshold"])
         path = self.stages / stage["name"] / "set_eval.json"
-        runs._save_result(result, path)
+        checkpoint_commands.save_result(result, path)
         stage["set_eval"] = str(path)
         stage["success"] = success_on(result.rows)
         if stage["kind"] == "primitive":
@@ -497,7 +498,7 @@ class Pipeline:
         print(f"pmcp: recovery evaluation of {stage['name']}", flush=True)
         result = evaluate_as(agent, RECOVERY, "stand", ev["num_envs"], self.progress, trials=ev["recovery_trials"])
         path = self.stages / stage["name"] / "recovery_eval.json"
-        runs._save_result(result, path)
+        checkpoint_commands.save_result(result, path)
         stage.update(recovery_eval=str(path), status="done")
         self._write()
 

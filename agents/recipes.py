@@ -507,6 +507,16 @@ def check_run_dir_free(run: str | os.PathLike) -> None:
                       f"--run-dir or continue it with --resume {run}")
 
 
+def check_device(device: str, what: str) -> None:
+    """Refuse a torch device this machine does not have (`what` names the setting), as a RecipeError."""
+    from .on_policy import resolve_device
+
+    try:
+        resolve_device(device, name=what)
+    except ValueError as e:
+        raise RecipeError(str(e)) from None
+
+
 def check_writable(path: str | os.PathLike, what: str, directory: bool = False) -> None:
     """Refuse an output path the command could not write, before the work that fills it: a file
     path (`directory=False`) that is a directory, a directory path that is a file, or a place

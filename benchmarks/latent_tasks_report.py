@@ -38,11 +38,11 @@ def met(value, comparison: str, target: float) -> bool:
 
 def evaluate(run: str, num_envs: int | None) -> dict:
     """The summary of the run's best checkpoint under its task's protocol, with its run's
-    evaluation settings (`agents.run.eval_settings`; its number of worlds too, unless `num_envs`
+    evaluation settings (`agents.checkpoint_commands.eval_settings`; its number of worlds too, unless `num_envs`
     is given), as `smpl-envs eval RUN` does."""
-    from agents.run import _load_target, eval_settings, evaluate_agent
+    from agents.checkpoint_commands import eval_settings, evaluate_agent, load_target
 
-    agent, ckpt, _, config = _load_target(run, "best", "cpu")
+    agent, ckpt, _, config = load_target(run, "best", "cpu")
     motions, worlds, options = eval_settings(config, num_envs=num_envs)
     result = evaluate_agent(agent, motions, worlds, progress=True, **options)
     return {"checkpoint": str(ckpt), "timesteps": agent.num_timesteps,

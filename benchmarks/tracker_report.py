@@ -24,10 +24,7 @@ METRICS = (("mpjpe_g", "E_g-mpjpe"), ("mpjpe_l", "E_mpjpe"), ("accel", "E_acc"),
 
 
 def family_of(name: str) -> str:
-    for split in corpus.SPLITS:
-        if f"_{split}_" in name:
-            return name.rsplit(f"_{split}_", 1)[0]
-    return name  # a shipped clip is its own family
+    return corpus.family_of(name) or name  # a shipped clip is its own family
 
 
 def per_family(rows: list[dict]) -> list[dict]:
@@ -55,9 +52,9 @@ def main(argv=None) -> None:
     parser.add_argument("--num-envs", type=int, default=16)
     parser.add_argument("--splits", nargs="+", choices=list(SPLITS), default=list(SPLITS))
     args = parser.parse_args(argv)
-    from agents.run import _load_target  # the command line's own lookup of runs and names
+    from agents.checkpoint_commands import load_target  # the command line's own lookup of runs and names
 
-    agent, ckpt, _, _ = _load_target(args.target, "best", "cpu")
+    agent, ckpt, _, _ = load_target(args.target, "best", "cpu")
     args.out.mkdir(parents=True, exist_ok=True)
     for split in args.splits:
         result = smpl_envs.evaluate(agent, agent.env_id, motions=SPLITS[split], num_envs=args.num_envs)

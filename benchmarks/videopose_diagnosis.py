@@ -47,7 +47,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import re
 import sys
 from pathlib import Path
 
@@ -99,11 +98,11 @@ def _true_root_height(v: VideoInput) -> VideoInput:
 
 
 def knobs(args) -> None:
-    from agents.run import _load_target  # the command line's own lookup of runs and names
+    from agents.checkpoint_commands import load_target  # the command line's own lookup of runs and names
 
     lib = load_motions(args.split)
     indices = evenly_spaced(lib.num_motions, args.sequences)
-    tracker = TrackerOnVideo(_load_target(args.tracker, "best", "cpu")[0])
+    tracker = TrackerOnVideo(load_target(args.tracker, "best", "cpu")[0])
 
     rows = [(name, degraded(lib, indices, EstimatorNoise.make(knob))) for name, knob in KNOB_ROWS]
     default = rows[0][1]
@@ -123,12 +122,12 @@ def knobs(args) -> None:
 
 @torch.no_grad()
 def refinement(args) -> None:
-    from agents.run import _load_target
+    from agents.checkpoint_commands import load_target
     from agents.simpoe import TRUTH, KinematicRefinement, split_observation
 
     print("| checkpoint | estimate, rms mm | refined, rms mm |\n|---|---|---|")
     for target in args.checkpoints:
-        agent = _load_target(target, "last", "cpu")[0]
+        agent = load_target(target, "last", "cpu")[0]
         pol = agent.policy
         if not isinstance(pol, KinematicRefinement):
             raise SystemExit(f"{target}: a {type(pol).__name__} policy, not SimPoE's KinematicRefinement")
@@ -173,7 +172,9 @@ def step0(args) -> None:
 
 
 def _family(name: str) -> str:
-    return re.sub(r"_(train|test)_\d+$", "", name)
+    from smpl_envs.motion.corpus import family_of
+
+    return family_of(name) or name
 
 
 def families(args) -> None:

@@ -90,13 +90,13 @@ def main(argv=None) -> None:
     parser.add_argument("--out", type=Path, default=Path("."))
     parser.add_argument("--no-robustness", action="store_true")
     args = parser.parse_args(argv)
-    from agents.run import _load_target  # the command line's own lookup of runs and names
+    from agents.checkpoint_commands import load_target  # the command line's own lookup of runs and names
 
     t0 = time.time()
     n_total = load_motions(args.split).num_motions
     indices = evenly_spaced(n_total, args.sequences)
     inputs = {1.0: video_input(args.split, indices, 1.0)}
-    tracker = TrackerOnVideo(_load_target(args.tracker, "best", "cpu")[0])
+    tracker = TrackerOnVideo(load_target(args.tracker, "best", "cpu")[0])
 
     def evaluate(policy, lib):
         return smpl_envs.evaluate(policy, "SMPL/VideoPose-v0", motions=lib, num_envs=args.num_envs, progress=False)
@@ -105,7 +105,7 @@ def main(argv=None) -> None:
             (f"tracker ({args.tracker}) on the noisy input", "off", evaluate(tracker, inputs[1.0]).summary)]
     for spec in args.run:
         name, _, target = spec.partition("=")
-        agent = _load_target(target or name, "best", "cpu")[0]
+        agent = load_target(target or name, "best", "cpu")[0]
         force = "on" if agent.env_kwargs.get("residual_force", False) else "off"
         rows.append((name, force, evaluate(agent, inputs[1.0]).summary))
 

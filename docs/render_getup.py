@@ -100,9 +100,9 @@ def main(argv=None) -> None:
                         help="the fallen trial: the first seed from --seed whose start lies this way (chosen by "
                              "how the body lies before any step, not by the outcome)")
     args = parser.parse_args(argv)
-    from agents.run import _load_target  # the command line's own lookup of runs and names
+    from agents.checkpoint_commands import load_target  # the command line's own lookup of runs and names
 
-    agent, ckpt, _, _ = _load_target(args.target, "best", "cpu")
+    agent, ckpt, _, _ = load_target(args.target, "best", "cpu")
     steps = int(round(args.seconds * FPS))
     tiles = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -71,9 +71,9 @@ def main(argv=None) -> None:
     parser.add_argument("--seed", type=int, default=0, help="which clip of each family")
     parser.add_argument("--out", type=Path, default=Path("docs/videos/tracker_test_grid.mp4"))
     args = parser.parse_args(argv)
-    from agents.run import _load_target  # the command line's own lookup of runs and names
+    from agents.checkpoint_commands import load_target  # the command line's own lookup of runs and names
 
-    agent, ckpt, _, _ = _load_target(args.target, "best", "cpu")
+    agent, ckpt, _, _ = load_target(args.target, "best", "cpu")
     lib = load_motions(f"corpus:{args.split}", progress=True)
     steps = int(round(args.seconds * lib.fps))
     tiles = []

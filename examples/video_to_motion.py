@@ -70,9 +70,9 @@ def make_input(args) -> VideoLib:
 
 
 def make_policy(target: str | None):
-    from agents.run import _load_target
+    from agents.checkpoint_commands import load_target
 
-    agent = _load_target(target or "tracker", "best", "cpu")[0]
+    agent = load_target(target or "tracker", "best", "cpu")[0]
     if agent.env_id == "SMPL/Imitation-v0":  # the tracker: its observation is the first 934 columns
         return (lambda obs: agent.predict(np.asarray(obs)[:, :TRACKER_OBS])[0]), {}, "tracker"
     settings = {k: agent.env_kwargs[k] for k in ("substeps", "residual_scale", "meta_pd", "meta_pd_range",

@@ -68,7 +68,7 @@ class EvalResult:
 
     def table(self) -> str:
         if self.kind == "clips":
-            return metrics.format_table(self.rows, self.summary)
+            return metrics.format_table(self.rows, self.summary) + family_table(self.rows)
         return format_episode_table(self.rows, self.summary)
 
     def to_json(self) -> str:
@@ -87,6 +87,28 @@ class EvalResult:
 
     def __str__(self) -> str:
         return self.table()
+
+
+def family_table(rows: list[dict]) -> str:
+    """Success per motion family, as a block to append to a clip table, when the rows are corpus
+    clips of two or more families ("" otherwise): which kinds of motion a policy keeps is what a
+    success rate over a mixed set hides."""
+    from .motion.corpus import family_of
+
+    by_family: dict[str, list[bool]] = {}
+    for row in rows:
+        family = family_of(str(row.get("name", "")))
+        if family is None:
+            return ""
+        by_family.setdefault(family, []).append(bool(row["success"]))
+    if len(by_family) < 2:
+        return ""
+    w = max(len("family"), *map(len, by_family))
+    lines = ["", "", f"{'family'.ljust(w)}  succeeded   rate"]
+    for family in sorted(by_family):
+        ok = by_family[family]
+        lines.append(f"{family.ljust(w)}  {sum(ok):>4} / {len(ok):<4} {100 * sum(ok) / len(ok):5.1f}%")
+    return "\n".join(lines)
 
 
 # ---------------------------------------------------------------------------------------- protocols
@@ -516,7 +538,7 @@ class ThreePointResult(EvalResult):
 
     def table(self) -> str:
         head = "three points (Head, L_Hand, R_Hand); E_mpjpe relative to the head, E_pa-mpjpe undefined:"
-        text = f"{head}\n{metrics.format_table(self.rows, self.summary)}"
+        text = f"{head}\n{metrics.format_table(self.rows, self.summary)}{family_table(self.rows)}"
         body_rows = [_body_row(r) for r in self.rows if "body_mpjpe_g" in r]
         if body_rows:
             summary = {"clips": len(body_rows), "success_rate": np.mean([r["success"] for r in body_rows]),

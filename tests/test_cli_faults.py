@@ -23,6 +23,7 @@ import pytest
 import agents
 import smpl_envs
 from agents import PPO
+from agents import checkpoint_commands
 from agents import run as run_module
 from agents.cli import DISK_FULL, INTERRUPTED, TERMINATED, main
 from agents.logger import Logger
@@ -409,8 +410,10 @@ def no_work(monkeypatch):
     def started(*args, **kwargs):
         raise AssertionError("the work started before the output path was checked")
 
-    for name in ("_new_agent", "evaluate_agent", "record_video"):
-        monkeypatch.setattr(run_module, name, started)
+    monkeypatch.setattr(run_module, "_new_agent", started)
+    monkeypatch.setattr(run_module, "record_video", started)  # training's video goes through run's import
+    for name in ("evaluate_agent", "record_video"):
+        monkeypatch.setattr(checkpoint_commands, name, started)
 
 
 UNWRITABLE = [

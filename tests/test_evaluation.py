@@ -120,3 +120,22 @@ def test_save_writes_json(tmp_path):
     assert data["summary"]["success_rate"] == result.summary["success_rate"]
     assert [c["name"] for c in data["clips"]] == ["walk", "run"]
     assert data["summary"]["mpjpe_g"] is None  # NaN (no successful clip) is written as null
+
+
+def test_a_clip_table_of_corpus_clips_ends_with_success_per_family():
+    from smpl_envs.evaluation import EvalResult, ThreePointResult
+    from smpl_envs.metrics import summarize
+
+    def row(name, success):
+        return {"name": name, "success": success, "frames": 30, "mpjpe_g": 50.0, "mpjpe_l": 40.0,
+                "mpjpe_pa": 30.0, "accel": 5.0, "vel": 6.0}
+
+    rows = [row("walk_test_0000", True), row("walk_test_0001", False), row("walk_test_0002", False),
+            row("turn_in_place_test_0000", True)]
+    for cls in (EvalResult, ThreePointResult):
+        lines = cls(rows, summarize(rows)).table().splitlines()
+        assert lines[lines.index("family         succeeded   rate") + 1:][:2] == [
+            "turn_in_place     1 / 1    100.0%", "walk              1 / 3     33.3%"]
+    # Not the corpus, or one family only: no block (a shipped clip is not a family).
+    for names in (["walk", "run"], ["walk_test_0000", "walk_test_0001"], ["walk_test_0000", "run"]):
+        assert "family" not in EvalResult([row(n, True) for n in names]).table()

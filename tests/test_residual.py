@@ -94,7 +94,7 @@ def test_zero_policy_tracks_better_in_residual_mode_than_in_absolute(residual_ch
     # the reference's joint angles in residual mode and the rest pose in absolute mode. PD control
     # alone falls in both within a second, so compare the pose (Procrustes-aligned error over every
     # frame tracked), not success or position.
-    from agents.run import evaluate_agent
+    from agents.checkpoint_commands import evaluate_agent
 
     agent = agents.load(residual_checkpoint, verbose=0)
     last = agent.policy.actor[-1]

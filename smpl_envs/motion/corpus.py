@@ -477,6 +477,21 @@ def clip_stream(seed: int, split: str, family: str, index: int) -> np.random.Gen
     return np.random.default_rng(np.random.SeedSequence(words))
 
 
+def clip_name(family: str, split: str, index: int) -> str:
+    """The name a corpus clip carries everywhere (the library, evaluation rows): walk_test_0003."""
+    return f"{family}_{split}_{index:04d}"
+
+
+def family_of(name: str) -> str | None:
+    """The family of a clip named by `clip_name`, or None for any other name."""
+    parts = name.rsplit("_", 2)
+    if len(parts) != 3:
+        return None
+    family, split, index = parts
+    ok = family in FAMILIES and split in SPLITS and len(index) == 4 and index.isdigit()
+    return family if ok else None
+
+
 def make_clip(seed: int, split: str, family: str, index: int) -> tuple[RawMotion, ClipRecord]:
     """Clip `index` of a family in a split, redrawn until it passes the physical checks."""
     fam = FAMILIES[family]
@@ -487,7 +502,7 @@ def make_clip(seed: int, split: str, family: str, index: int) -> tuple[RawMotion
         raw = fam.make(d)
         report = check_motion(raw)
         if report.ok:
-            name = f"{family}_{split}_{index:04d}"
+            name = clip_name(family, split, index)
             raw = RawMotion(name, raw.fps, raw.root_pos, raw.local_quat, source=f"smpl_envs.corpus:{split}/{family}")
             params = {k: v for k, v in d.values.items()}
             if d.chosen is not None:

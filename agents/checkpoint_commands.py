@@ -24,7 +24,7 @@ class Evaluator:
     """`evaluate_fn` for EvalCallback: the task's own evaluation protocol on the agent's env,
     returning the summary's numbers; keeps the full result of the latest call for eval.json.
 
-    Once `history_dir` is set (by `_train`, when the run directory exists), every evaluation's
+    Once `history_dir` is set (by `agents.run`, when the run directory exists), every evaluation's
     full result (per clip or per episode, which the progress CSV's summary columns leave out) is
     also kept as `<timesteps>.json` / `.txt` there: how each clip of a multi-clip run came along,
     after the run's checkpoints have rotated out."""

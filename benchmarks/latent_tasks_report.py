@@ -38,8 +38,8 @@ def met(value, comparison: str, target: float) -> bool:
 
 def evaluate(run: str, num_envs: int | None) -> dict:
     """The summary of the run's best checkpoint under its task's protocol, with its run's
-    evaluation settings (`agents.checkpoint_commands.eval_settings`; its number of worlds too, unless `num_envs`
-    is given), as `smpl-envs eval RUN` does."""
+    evaluation settings (`agents.checkpoint_commands.eval_settings`; its number of worlds too,
+    unless `num_envs` is given), as `smpl-envs eval RUN` does."""
     from agents.checkpoint_commands import eval_settings, evaluate_agent, load_target
 
     agent, ckpt, _, config = load_target(run, "best", "cpu")

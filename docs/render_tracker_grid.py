@@ -30,9 +30,9 @@ def pick_clips(lib: MotionLib, seed: int) -> list[int]:
     rng = np.random.default_rng(seed)
     by_family: dict[str, list[int]] = {}
     for i, name in enumerate(lib.names):
-        for split in corpus.SPLITS:
-            if f"_{split}_" in name:
-                by_family.setdefault(name.rsplit(f"_{split}_", 1)[0], []).append(i)
+        family = corpus.family_of(name)
+        if family is not None:
+            by_family.setdefault(family, []).append(i)
     return [int(rng.choice(by_family[f])) for f in corpus.FAMILIES if f in by_family]
 
 

@@ -33,7 +33,7 @@ def _records(lib, split: str) -> list[corpus.ClipRecord]:
     """Manifest records of a loaded corpus library, from its clip names and lengths."""
     out = []
     for name, frames in zip(lib.names, lib.lengths):
-        family = name.rsplit(f"_{split}_", 1)[0]
+        family = corpus.family_of(name)
         out.append(corpus.ClipRecord(name, family, split, int(frames), {}, 0))
     return out
 

@@ -63,6 +63,20 @@ def test_shipped_clips_policy_tracks_the_flight_clips():
     assert result.summary["mpjpe_g"] < 100.0
 
 
+def test_shipped_vr_policy_follows_three_points_while_stepping():
+    # The latent VR policy (its target met on corpus:test) on the side steps it all follows, through
+    # VR's protocol with its frozen PULSE decoder: a change to the env, the latent plug-in or the
+    # decoder's inputs that breaks it fails here.
+    import smpl_envs
+
+    policy = agents.load(find_checkpoint("vr"), device="cpu")
+    assert isinstance(policy.policy, LatentActorCritic)
+    result = smpl_envs.evaluate(policy, "SMPL/VRTracking-v0", motions="corpus:test/side_step", num_envs=6,
+                                progress=False, threshold=0.5)
+    assert result.summary["clips"] == 6
+    assert result.summary["success_rate"] >= 5 / 6, result.rows
+
+
 # ---------------------------------------------------------------------------------------- the README's examples
 README = Path(__file__).resolve().parents[1] / "README.md"
 

@@ -158,6 +158,13 @@ def test_strike_reward_known_answers():
     np.testing.assert_allclose(terms["approach"], [0.4, 0.0]) and np.testing.assert_allclose(terms["topple"], 0.0)
     r, terms = strike_reward(np.array([0.1, 0.5]), root, vel, box)
     np.testing.assert_allclose(r, [1.0, 0.6 * 0.5])  # toppled: 1; half way: the tilt term only
+    # approach_radius: standing still (or backing off) within the radius is paid as a full approach
+    near = np.array([[1.5, 0, 0.0], [0.0, 0, 0.0]])  # 0.5 m and 2 m from the box
+    still = np.zeros((2, 3))
+    _, terms = strike_reward(np.array([1.0, 1.0]), near, still, box, approach_radius=1.0)
+    np.testing.assert_allclose(terms["approach"], [0.4, 0.0])
+    _, terms = strike_reward(np.array([1.0, 1.0]), near, still, box)
+    np.testing.assert_allclose(terms["approach"], [0.0, 0.0])
 
 
 def test_box_pushed_over_scores_one():
@@ -257,6 +264,7 @@ def test_episode_evaluation_runs_the_protocol(env_id):
     ("SMPL/Strike-v0", dict(box_size=("x", 0.4, 1.8)), "box_size"),
     ("SMPL/Strike-v0", dict(box_density="x"), "box_density"),
     ("SMPL/Strike-v0", dict(box_density=float("nan")), "box_density"),
+    ("SMPL/Strike-v0", dict(approach_radius=0), "approach_radius"),
     ("SMPL/Speed-v0", dict(render_size=(0, 0)), "render_size"),
     ("SMPL/Speed-v0", dict(render_size=(4000, 3000)), "render_size"),
     ("SMPL/Speed-v0", dict(render_size=640), "render_size"),

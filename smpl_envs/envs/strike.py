@@ -22,6 +22,9 @@ Reward (`info["reward_topple"]`, `info["reward_approach"]`; their sum):
     topple    0.6 max(0, 1 - up . up_target)  (the box's z axis against the world's)
     approach  0.4 exp(-4 max(0, 1 - v_toward)^2), 0 when the pelvis moves away from the box
 and once the box is toppled (up . up_target < 0.2) the reward is 1 (all of it in `topple`).
+`approach_radius` (None, the paper's) pays the approach term in full while the pelvis is within
+that horizontal distance of the box's axis: PULSE's and ASE's term pays for walking on at 1 m/s
+until a body touches the box, which ends the episode (ASE's location task has such a radius).
 
 Episode: 300 steps (10 s); ends on a fall, or when a body other than the right hand, wrist or
 elbow touches the box. Starts: the rest pose, or random frames of `motions=`.
@@ -59,15 +62,19 @@ STRIKE_LAYOUT = (
 )
 
 
-def strike_reward(box_up, root_pos, root_vel, box_pos):
+def strike_reward(box_up, root_pos, root_vel, box_pos, approach_radius: float | None = None):
     """(reward (N,), {"topple", "approach"}) from the box's up . up_target (N,), pelvis position
-    and velocity (N, 3) and box position (N, 3), world frame."""
+    and velocity (N, 3) and box position (N, 3), world frame; within `approach_radius` (m) of the
+    box the approach term is paid in full."""
     m = xp(box_pos)
     toppled = box_up < TOPPLED
     to_box = box_pos[:, :2] - root_pos[:, :2]
-    to_box = to_box / (m.sqrt((to_box * to_box).sum(-1))[:, None] + 1e-9)
+    distance = m.sqrt((to_box * to_box).sum(-1))
+    to_box = to_box / (distance[:, None] + 1e-9)
     v = (root_vel[:, :2] * to_box).sum(-1)
     approach = m.where(v > 0.0, 0.4 * m.exp(-4.0 * (1.0 - v).clip(min=0.0) ** 2), 0.0)
+    if approach_radius is not None:
+        approach = m.where(distance < approach_radius, 0.4, approach)
     topple = 0.6 * (1.0 - box_up).clip(min=0.0)
     terms = {"topple": m.where(toppled, 1.0, topple), "approach": m.where(toppled, 0.0, approach)}
     return terms["topple"] + terms["approach"], terms
@@ -82,7 +89,8 @@ class StrikeVecEnv(GoalVecEnv):
 
     kwargs: box_distance ((1.5, 5.0) m from the pelvis; at least HUMANOID_REACH + the box's
     half-diagonal, 1.18 m for the default box), box_size ((0.4, 0.4, 1.8) m), box_density (30 kg/m^3),
-    and GoalVecEnv's (fall_height, head_height, motions, start, ...).
+    approach_radius (None: the paper's reward; m, see the module docstring), and GoalVecEnv's
+    (fall_height, head_height, motions, start, ...).
     """
 
     task_layout = {"task": STRIKE_LAYOUT}
@@ -90,7 +98,7 @@ class StrikeVecEnv(GoalVecEnv):
     backends = ("cpu", "warp")
 
     def __init__(self, num_envs: int = 1, *, box_distance=(1.5, 5.0), box_size=(0.4, 0.4, 1.8),
-                 box_density: float = 30.0, **kwargs):
+                 box_density: float = 30.0, approach_radius: float | None = None, **kwargs):
         try:
             size = np.asarray(box_size, float)
         except (TypeError, ValueError):
@@ -104,6 +112,8 @@ class StrikeVecEnv(GoalVecEnv):
                              f"(its reach {HUMANOID_REACH} m from the pelvis + the box's half-diagonal), "
                              f"got {box_distance!r}")
         self.box_size, self.box_density = size, check_number("box_density", box_density, positive=True)
+        self.approach_radius = (None if approach_radius is None
+                                else check_number("approach_radius", approach_radius, positive=True))
         super().__init__(num_envs, **kwargs)
         joint = self.model.body_jntadr[mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, "box")]
         q, v = self.model.jnt_qposadr[joint], self.model.jnt_dofadr[joint]
@@ -146,7 +156,7 @@ class StrikeVecEnv(GoalVecEnv):
     def _evaluate(self, body, heading):
         pos, rot, _, _ = self.box_state()
         up = rot[:, 2, 2]
-        reward, terms = strike_reward(up, body.pos[:, 0], body.lin_vel[:, 0], pos)
+        reward, terms = strike_reward(up, body.pos[:, 0], body.lin_vel[:, 0], pos, self.approach_radius)
         touching = self.sim.sensordata > 0
         touching[:, STRIKERS] = False
         return reward, terms, self._fallen(body) | touching.any(-1), self.backend.zeros(self.num_envs, "bool")

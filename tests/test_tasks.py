@@ -205,6 +205,36 @@ def test_a_torso_touching_the_box_ends_the_episode_and_the_hand_does_not():
     env.close()
 
 
+def test_strike_outcomes_splits_falls_from_fouls(tmp_path):
+    # benchmarks/strike_outcomes.py on an untrained policy with the box next to it: every episode
+    # is counted once, as a fall, a foul or a full one, and a non-Strike checkpoint is refused.
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from agents import PPO
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "strike_outcomes.py"
+    model = PPO("SMPL/Strike-v0", n_envs=1, env_kwargs={"box_distance": (1.2, 1.3)}, n_steps=8, batch_size=8,
+                policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0, device="cpu")
+    model.save(tmp_path / "strike.pt", optimizer=False)
+    out = subprocess.run([sys.executable, str(script), str(tmp_path / "strike.pt"), "--episodes", "3",
+                          "--num-envs", "3"], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    counts = {line.split("|")[1].strip(): int(line.split("|")[4].split()[0])
+              for line in out.stdout.splitlines() if line.startswith(("| full", "| fall", "| foul"))}
+    assert set(counts) == {"full", "fall", "foul"} and sum(counts.values()) == 3
+    assert "| all |" in out.stdout and "3 episodes" in out.stdout
+    speed = PPO("SMPL/Speed-v0", n_envs=1, n_steps=8, batch_size=8,
+                policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0, device="cpu")
+    speed.save(tmp_path / "speed.pt", optimizer=False)
+    out = subprocess.run([sys.executable, str(script), str(tmp_path / "speed.pt")], capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode != 0 and "not SMPL/Strike-v0" in out.stderr
+    model.close()
+    speed.close()
+
+
 def test_a_box_too_close_to_start_clear_of_the_humanoid_is_refused():
     for distance in [(0.0, 0.0), (0.2, 0.2), (0.5, 4.0), (1.1, 4.0)]:
         with pytest.raises(ValueError, match=r"box_distance must keep the box clear of the humanoid: at least 1.18 m"):

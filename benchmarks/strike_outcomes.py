@@ -34,6 +34,7 @@ def main(argv=None) -> None:
 
     import smpl_envs  # noqa: F401  (registers the ids)
     from agents.checkpoint_commands import load_target
+    from smpl_envs.envs.base import CONTROL_FPS
     from smpl_envs.envs.strike import STRIKERS
     from smpl_envs.humanoid.skeleton import BODY_NAMES
 
@@ -64,7 +65,7 @@ def main(argv=None) -> None:
         for i in range(take):
             ends[(end[i], bool(toppled_at[i] > 0))] += 1
             if toppled_at[i] > 0:
-                topple_s.append(toppled_at[i] / 30.0)
+                topple_s.append(toppled_at[i] / CONTROL_FPS)
         done += take
     env.close()
 

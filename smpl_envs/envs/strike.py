@@ -72,9 +72,10 @@ def strike_reward(box_up, root_pos, root_vel, box_pos, approach_radius: float | 
     distance = m.sqrt((to_box * to_box).sum(-1))
     to_box = to_box / (distance[:, None] + 1e-9)
     v = (root_vel[:, :2] * to_box).sum(-1)
-    approach = m.where(v > 0.0, 0.4 * m.exp(-4.0 * (1.0 - v).clip(min=0.0) ** 2), 0.0)
+    approach = m.where(v > 0.0, m.exp(-4.0 * (1.0 - v).clip(min=0.0) ** 2), 0.0)
     if approach_radius is not None:
-        approach = m.where(distance < approach_radius, 0.4, approach)
+        approach = m.where(distance < approach_radius, 1.0, approach)
+    approach = 0.4 * approach
     topple = 0.6 * (1.0 - box_up).clip(min=0.0)
     terms = {"topple": m.where(toppled, 1.0, topple), "approach": m.where(toppled, 0.0, approach)}
     return terms["topple"] + terms["approach"], terms

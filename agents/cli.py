@@ -13,6 +13,7 @@
     smpl-envs generate pulse --seconds 20                # a PULSE prior's motion, no task
     smpl-envs plot runs/imitation_ppo-<time>
     smpl-envs plot runs/speed_pulse runs/speed_ppo --label PULSE --label scratch --x minutes --out speed.png
+    smpl-envs plot runs/reach_stage1,runs/reach_stage2      # stages started from each other with --init
     smpl-envs recipes                                   # the shipped recipes, one line each
     smpl-envs info                                      # versions, GL backend, devices: for bug reports
     smpl-envs pmcp pmcp_corpus                          # PMCP's pipeline, runs/pmcp_corpus/; resumes
@@ -182,8 +183,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_perpetual)
 
     p = sub.add_parser("plot", parents=[common], help="draw a run's learning curves to a PNG, or compare runs")
-    p.add_argument("runs", type=Path, nargs="+", metavar="RUN",
-                   help="a run directory; two or more: their evaluation and episode curves on shared panels")
+    p.add_argument("runs", nargs="+", metavar="RUN",
+                   help="a run directory (a run trained in stages, each started from the last with --init: "
+                        "the stages' directories joined with commas); two or more: their evaluation and "
+                        "episode curves on shared panels")
     p.add_argument("--out", type=Path, help="PNG path (default for one run: RUN/curves.png; a comparison needs it)")
     p.add_argument("--label", action="append", help="a comparison's legend name of each run, in order")
     p.add_argument("--metric", action="append", help="a comparison's column to draw (e.g. success_rate, "

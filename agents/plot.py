@@ -10,6 +10,10 @@ runs with or without evaluation, and a run that has only logged its first row. A
 draws the evaluation columns and the episode statistics against timesteps or against minutes
 of training (summed over the segments of a resumed run): agents that pay differently per sample
 (PULSE's task policies decode every action) are compared at equal wall-clock budgets so.
+
+A run trained in stages, each started from the one before with `--init` (whose step count starts
+again at 0), is drawn as one curve by naming its directories joined with commas,
+`runs/stage1,runs/stage2`: each stage's steps continue from where the one before ended.
 """
 from __future__ import annotations
 
@@ -55,6 +59,28 @@ def find_progress_csv(run_dir_or_csv: str | os.PathLike) -> Path:
     if not path.is_file():
         raise FileNotFoundError(f"no progress CSV at {path}")
     return path
+
+
+def read_run(run: str | os.PathLike) -> tuple[dict[str, np.ndarray], Path]:
+    """The progress columns of a run (a directory or CSV), or of stages joined with commas (module
+    docstring): each stage's steps follow on from the last step of the one before. Returns the
+    columns and the last stage's CSV path."""
+    stages = [s for s in str(run).split(",")] if "," in str(run) and not Path(run).exists() else [run]
+    if any(not str(s).strip() for s in stages):
+        raise ValueError(f"{run!r}: an empty stage; join run directories with commas, e.g. runs/a,runs/b")
+    parts, offset = [], 0.0
+    for stage in stages:
+        csv_path = find_progress_csv(str(stage).strip())
+        columns = read_progress(csv_path)
+        if X_KEY not in columns:
+            raise EmptyLogError(f"{csv_path} has no {X_KEY} column")
+        columns[X_KEY] = columns[X_KEY] + offset
+        offset = float(np.nanmax(columns[X_KEY]))
+        parts.append(columns)
+    keys = sorted({k for c in parts for k in c})
+    rows = [len(c[X_KEY]) for c in parts]
+    joined = {k: np.concatenate([c.get(k, np.full(n, math.nan)) for c, n in zip(parts, rows)]) for k in keys}
+    return joined, csv_path
 
 
 def read_progress(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -122,11 +148,9 @@ def panels_for(columns: dict[str, np.ndarray]) -> list[Panel]:
 
 
 def plot_run(run_dir_or_csv: str | os.PathLike, out: str | os.PathLike | None = None, dpi: int = 110) -> Path:
-    """Draw the learning curves of a run to `out` (default: <run>/curves.png); returns the path."""
-    csv_path = find_progress_csv(run_dir_or_csv)
-    columns = read_progress(csv_path)
-    if X_KEY not in columns:
-        raise EmptyLogError(f"{csv_path} has no {X_KEY} column")
+    """Draw the learning curves of a run (or of stages joined with commas) to `out` (default:
+    <run>/curves.png, the last stage's); returns the path."""
+    columns, csv_path = read_run(run_dir_or_csv)
     run_dir = csv_path.parent.parent if csv_path.parent.name == "logs" else csv_path.parent
     out = Path(out) if out is not None else run_dir / "curves.png"
 
@@ -145,7 +169,9 @@ def plot_run(run_dir_or_csv: str | os.PathLike, out: str | os.PathLike | None = 
         # One time axis for all panels, also for sparse ones (evaluations) that would zoom in.
         if hi > lo:
             ax.set_xlim(lo - 0.02 * (hi - lo), hi + 0.02 * (hi - lo))
-    fig.suptitle(f"{run_dir.name}: {int(hi):,} timesteps")
+    name = " + ".join(Path(stage).name for stage in str(run_dir_or_csv).split(",")) if "," in str(run_dir_or_csv) \
+        else run_dir.name
+    fig.suptitle(f"{name}: {int(hi):,} timesteps")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=dpi)
@@ -250,10 +276,10 @@ def plot_runs(runs, out: str | os.PathLike, labels=None, x: str = "timesteps", m
     `out`; `labels`: one per run (default: the run directories' names); `x`: "timesteps" or
     "minutes"; `metrics`: the columns to draw ("eval/no_fall" or just "no_fall"; default
     `compared_columns`). Returns the path."""
-    runs = [Path(r) for r in runs]
+    runs = [str(r) for r in runs]
     if len(runs) < 2:
         raise ValueError("a comparison needs at least two runs")
-    labels = [r.name for r in runs] if labels is None else list(labels)
+    labels = [" + ".join(Path(s).name for s in r.split(",")) for r in runs] if labels is None else list(labels)
     if len(labels) != len(runs):
         raise ValueError(f"{len(labels)} label(s) for {len(runs)} runs; give one label a run")
     if x not in X_AXES:
@@ -261,8 +287,7 @@ def plot_runs(runs, out: str | os.PathLike, labels=None, x: str = "timesteps", m
     x_key, x_label = X_AXES[x]
     logs = []
     for run in runs:
-        csv_path = find_progress_csv(run)
-        columns = read_progress(csv_path)
+        columns, csv_path = read_run(run)
         if x_key not in columns:
             raise EmptyLogError(f"{csv_path} has no {x_key} column")
         xs = training_minutes(columns[x_key]) if x == "minutes" else columns[x_key]
@@ -306,5 +331,5 @@ def plot_runs(runs, out: str | os.PathLike, labels=None, x: str = "timesteps", m
     return out
 
 
-__all__ = ["plot_run", "plot_runs", "compared_columns", "training_minutes", "read_progress", "find_progress_csv", "panels_for",
+__all__ = ["plot_run", "plot_runs", "compared_columns", "training_minutes", "read_progress", "read_run", "find_progress_csv", "panels_for",
            "EmptyLogError"]

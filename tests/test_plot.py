@@ -94,3 +94,24 @@ def test_a_comparison_draws_the_headline_columns_or_the_ones_asked_for(tmp_path)
     assert plot_runs([a, b], tmp_path / "m.png", metrics=["no_fall"]).is_file()
     with pytest.raises(ValueError, match="no run logged 'speed_error'; evaluation columns: no_fall, trials_far"):
         plot_runs([a, b], tmp_path / "m.png", metrics=["speed_error"])
+
+
+def test_stages_joined_with_commas_read_as_one_run(tmp_path):
+    # A second stage started with --init counts its steps from 0 again: joined, its steps follow
+    # the first stage's last one, its columns keep their rows, and minutes add up.
+    from agents.plot import read_run
+
+    first = _run(tmp_path, "stage1", [(2048, 30, 20, 0.1), (4096, 60, 40, 0.5)])
+    second = _run(tmp_path, "stage2", [(1024, 20, 50, 0.6), (3072, 40, 60, 0.7)])
+    columns, last = read_run(f"{first},{second}")
+    np.testing.assert_array_equal(columns["time/total_timesteps"], [2048, 4096, 5120, 7168])
+    np.testing.assert_array_equal(columns["eval/no_fall"], [0.1, 0.5, 0.6, 0.7])
+    np.testing.assert_allclose(training_minutes(columns["time/elapsed_s"]), [0.5, 1.0, 4 / 3, 5 / 3])
+    assert last == second / "logs" / "progress.csv"
+    out = plot_run(f"{first},{second}")
+    assert out == second / "curves.png" and out.stat().st_size > 10_000
+    assert plot_runs([f"{first},{second}", first], tmp_path / "cmp.png").is_file()
+    with pytest.raises(ValueError, match="an empty stage"):
+        read_run(f"{first},")
+    with pytest.raises(FileNotFoundError, match="no progress CSV"):
+        read_run(f"{first},{tmp_path / 'missing'}")

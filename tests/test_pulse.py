@@ -411,10 +411,17 @@ def test_the_latent_recipes_resolve(pulse_path):
             kwargs, hp = recipe["agent"]["policy"]["kwargs"], recipe["agent"]["hyperparams"]
             assert recipe["agent"]["policy"]["class"] == "LatentActorCritic", name
             assert kwargs["log_std_init"] == log_std and kwargs["learn_std"] is False, name
-            # PULSE's 2e-5 at GPU scale; on 2 cores Speed, Strike and VR learn at ten times it (docs/pulse.md).
-            rate = 2e-4 if name in ("speed_pulse", "strike_pulse", "vr_pulse") and profile is None else 2e-5
+            # PULSE's 2e-5 at GPU scale; on 2 cores Speed, Reach, Strike and VR learn at ten times it
+            # (docs/pulse.md).
+            rate = 2e-4 if name in ("speed_pulse", "reach_pulse", "strike_pulse", "vr_pulse") and profile is None \
+                else 2e-5
             assert hp["learning_rate"] == rate and hp["bounds_loss_coef"] == 10 and hp["bounds_loss_limit"] == 1, name
     assert load_recipe("vr_pulse", over)["env"]["kwargs"]["action_mode"] == "absolute"
+    # Reach's two stages: a wide kernel from standing starts, then the paper's, same agent.
+    wide, sharp = load_recipe("reach_pulse", over), load_recipe("reach_pulse_sharp", over)
+    assert wide["env"]["kwargs"] == {"motions": None, "reward_sharpness": 1.0}
+    assert sharp["env"]["kwargs"] == {"motions": None, "reward_sharpness": 4.0} and sharp["agent"] == wide["agent"]
+    assert load_recipe("reach_pulse", over, "paper")["env"]["kwargs"]["reward_sharpness"] == 4.0
     paper = load_recipe("pulse_distill", profile="paper")["agent"]["policy"]["kwargs"]
     assert paper["decoder_hidden"] == [3096, 2048, 1024] and paper["encoder_hidden"] == [1536, 1024, 512]
     if "pulse" not in agents.recipes.pretrained_checkpoints():  # until pulse.pt ships, a clear error

@@ -235,6 +235,52 @@ def test_strike_outcomes_splits_falls_from_fouls(tmp_path):
     speed.close()
 
 
+def test_reach_outcomes_place_and_time_every_target(tmp_path):
+    # benchmarks/reach_outcomes.py: the summary of known targets, then a run of an untrained policy
+    # whose every target is counted once on each split (front / behind, side) and a non-Reach
+    # checkpoint refused.
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from agents import PPO
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "reach_outcomes.py"
+    sys.path.insert(0, str(script.parent))
+    try:
+        from reach_outcomes import summarise
+    finally:
+        sys.path.remove(str(script.parent))
+    rows = np.array([[0.5, -0.3, 0.1, 1.0, 0.05, 15],     # in front, right side, middle: reached in 0.5 s
+                     [0.5, 0.3, 0.9, 1.8, 0.04, 45],      # in front, across, high: reached in 1.5 s
+                     [-0.5, -0.3, -0.6, 0.3, 0.60, -1]])  # behind, low: missed
+    table = {line.split("|")[1].strip(): line.split("|")[2:6] for line in summarise(rows, 30.0)[2:]}
+    assert [c.strip() for c in table["all"]] == ["3", "66.7%", "0.050", "1.00"]
+    assert [c.strip() for c in table["behind (x < 0)"]] == ["1", "0.0%", "0.600", "-"]
+    assert [c.strip() for c in table["high (height >= 1.4 m)"]] == ["1", "100.0%", "0.040", "1.50"]
+
+    model = PPO("SMPL/Reach-v0", n_envs=1, env_kwargs={"resample_interval": (5, 5), "max_episode_steps": 32},
+                n_steps=8, batch_size=8, policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0,
+                device="cpu")
+    model.save(tmp_path / "reach.pt", optimizer=False)
+    out = subprocess.run([sys.executable, str(script), str(tmp_path / "reach.pt"), "--episodes", "3",
+                          "--num-envs", "2"], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    counts = {line.split("|")[1].strip(): int(line.split("|")[2]) for line in out.stdout.splitlines()
+              if line.startswith("| ") and not line.startswith("| targets")}
+    assert "3 episodes" in out.stdout and counts["all"] >= 3
+    assert counts["all"] == counts.get("in front (x > 0)", 0) + counts.get("behind (x < 0)", 0)
+    assert counts["all"] == counts.get("right-hand side (y < 0)", 0) + counts.get("across the body (y > 0)", 0)
+    speed = PPO("SMPL/Speed-v0", n_envs=1, n_steps=8, batch_size=8,
+                policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0, device="cpu")
+    speed.save(tmp_path / "speed.pt", optimizer=False)
+    out = subprocess.run([sys.executable, str(script), str(tmp_path / "speed.pt")], capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode != 0 and "not SMPL/Reach-v0" in out.stderr
+    model.close()
+    speed.close()
+
+
 def test_a_box_too_close_to_start_clear_of_the_humanoid_is_refused():
     for distance in [(0.0, 0.0), (0.2, 0.2), (0.5, 4.0), (1.1, 4.0)]:
         with pytest.raises(ValueError, match=r"box_distance must keep the box clear of the humanoid: at least 1.18 m"):

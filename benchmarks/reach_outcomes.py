@@ -13,10 +13,8 @@ within 0.1 m are left out, as the protocol does.
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
-import torch
+from policy_episodes import open_policy_env
 
 
 def summarise(rows: np.ndarray, fps: float) -> list[str]:
@@ -42,29 +40,10 @@ def summarise(rows: np.ndarray, fps: float) -> list[str]:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("target", help="a run directory, checkpoint or shipped name")
-    p.add_argument("--checkpoint", choices=("best", "last"), default="last")
-    p.add_argument("--episodes", type=int, default=64)
-    p.add_argument("--num-envs", type=int, default=16)
-    p.add_argument("--seed", type=int, default=1000)
-    args = p.parse_args(argv)
-    if args.episodes < 1 or args.num_envs < 1:
-        p.error("--episodes and --num-envs must be at least 1")
-    torch.set_num_threads(1)
-
-    import gymnasium as gym
-
-    import smpl_envs  # noqa: F401  (registers the ids)
-    from agents.checkpoint_commands import load_target
     from smpl_envs.envs.base import CONTROL_FPS
     from smpl_envs.envs.reach import REACHED
 
-    agent, ckpt, _, _ = load_target(args.target, args.checkpoint, "cpu")
-    if agent.env_id != "SMPL/Reach-v0":
-        p.error(f"{ckpt} was trained on {agent.env_id}, not SMPL/Reach-v0")
-    n = min(args.num_envs, args.episodes)
-    env = gym.make_vec(agent.env_id, num_envs=n, autoreset_mode="Disabled", **agent.env_kwargs)
+    args, agent, ckpt, env, n = open_policy_env(__doc__, "SMPL/Reach-v0", argv)
     rows, falls, done, seed = [], 0, 0, args.seed
     while done < args.episodes:
         take = min(n, args.episodes - done)

@@ -11,38 +11,18 @@ different stream from the protocol's, so the two are independent samples).
 
 from __future__ import annotations
 
-import argparse
 import collections
 
 import numpy as np
-import torch
+from policy_episodes import open_policy_env
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("target", help="a run directory, checkpoint or shipped name")
-    p.add_argument("--checkpoint", choices=("best", "last"), default="last")
-    p.add_argument("--episodes", type=int, default=64)
-    p.add_argument("--num-envs", type=int, default=16)
-    p.add_argument("--seed", type=int, default=1000)
-    args = p.parse_args(argv)
-    if args.episodes < 1 or args.num_envs < 1:
-        p.error("--episodes and --num-envs must be at least 1")
-    torch.set_num_threads(1)
-
-    import gymnasium as gym
-
-    import smpl_envs  # noqa: F401  (registers the ids)
-    from agents.checkpoint_commands import load_target
     from smpl_envs.envs.base import CONTROL_FPS
     from smpl_envs.envs.strike import STRIKERS
     from smpl_envs.humanoid.skeleton import BODY_NAMES
 
-    agent, ckpt, _, _ = load_target(args.target, args.checkpoint, "cpu")
-    if agent.env_id != "SMPL/Strike-v0":
-        p.error(f"{ckpt} was trained on {agent.env_id}, not SMPL/Strike-v0")
-    n = min(args.num_envs, args.episodes)
-    env = gym.make_vec(agent.env_id, num_envs=n, autoreset_mode="Disabled", **agent.env_kwargs)
+    args, agent, ckpt, env, n = open_policy_env(__doc__, "SMPL/Strike-v0", argv)
     ends, fouls, topple_s = collections.Counter(), collections.Counter(), []
     done, seed = 0, args.seed
     while done < args.episodes:

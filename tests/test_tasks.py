@@ -205,6 +205,22 @@ def test_a_torso_touching_the_box_ends_the_episode_and_the_hand_does_not():
     env.close()
 
 
+def _refuses_a_speed_checkpoint(script, tmp_path, task: str) -> None:
+    # The outcome benchmarks read their own task's info: another task's checkpoint is refused.
+    import subprocess
+    import sys
+
+    from agents import PPO
+
+    speed = PPO("SMPL/Speed-v0", n_envs=1, n_steps=8, batch_size=8,
+                policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0, device="cpu")
+    speed.save(tmp_path / "speed.pt", optimizer=False)
+    speed.close()
+    out = subprocess.run([sys.executable, str(script), str(tmp_path / "speed.pt")], capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode != 0 and f"not {task}" in out.stderr
+
+
 def test_strike_outcomes_splits_falls_from_fouls(tmp_path):
     # benchmarks/strike_outcomes.py on an untrained policy with the box next to it: every episode
     # is counted once, as a fall, a foul or a full one, and a non-Strike checkpoint is refused.
@@ -225,14 +241,8 @@ def test_strike_outcomes_splits_falls_from_fouls(tmp_path):
               for line in out.stdout.splitlines() if line.startswith(("| full", "| fall", "| foul"))}
     assert set(counts) == {"full", "fall", "foul"} and sum(counts.values()) == 3
     assert "| all |" in out.stdout and "3 episodes" in out.stdout
-    speed = PPO("SMPL/Speed-v0", n_envs=1, n_steps=8, batch_size=8,
-                policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0, device="cpu")
-    speed.save(tmp_path / "speed.pt", optimizer=False)
-    out = subprocess.run([sys.executable, str(script), str(tmp_path / "speed.pt")], capture_output=True, text=True,
-                         timeout=600)
-    assert out.returncode != 0 and "not SMPL/Strike-v0" in out.stderr
+    _refuses_a_speed_checkpoint(script, tmp_path, "SMPL/Strike-v0")
     model.close()
-    speed.close()
 
 
 def test_reach_outcomes_place_and_time_every_target(tmp_path):
@@ -271,14 +281,8 @@ def test_reach_outcomes_place_and_time_every_target(tmp_path):
     assert "3 episodes" in out.stdout and counts["all"] >= 3
     assert counts["all"] == counts.get("in front (x > 0)", 0) + counts.get("behind (x < 0)", 0)
     assert counts["all"] == counts.get("right-hand side (y < 0)", 0) + counts.get("across the body (y > 0)", 0)
-    speed = PPO("SMPL/Speed-v0", n_envs=1, n_steps=8, batch_size=8,
-                policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0, device="cpu")
-    speed.save(tmp_path / "speed.pt", optimizer=False)
-    out = subprocess.run([sys.executable, str(script), str(tmp_path / "speed.pt")], capture_output=True, text=True,
-                         timeout=600)
-    assert out.returncode != 0 and "not SMPL/Reach-v0" in out.stderr
+    _refuses_a_speed_checkpoint(script, tmp_path, "SMPL/Reach-v0")
     model.close()
-    speed.close()
 
 
 def test_a_box_too_close_to_start_clear_of_the_humanoid_is_refused():

@@ -61,16 +61,28 @@ def find_progress_csv(run_dir_or_csv: str | os.PathLike) -> Path:
     return path
 
 
+def run_stages(run: str | os.PathLike) -> list[str]:
+    """The stage paths of a run named with commas (module docstring), or [run] for one path."""
+    if "," not in str(run) or Path(run).exists():
+        return [str(run)]
+    stages = [s.strip() for s in str(run).split(",")]
+    if not all(stages):
+        raise ValueError(f"{run!r}: an empty stage; join run directories with commas, e.g. runs/a,runs/b")
+    return stages
+
+
+def run_name(run: str | os.PathLike) -> str:
+    """A run's name for titles and legends: its directory's, or its stages' joined with " + "."""
+    return " + ".join(Path(stage).name for stage in run_stages(run))
+
+
 def read_run(run: str | os.PathLike) -> tuple[dict[str, np.ndarray], Path]:
     """The progress columns of a run (a directory or CSV), or of stages joined with commas (module
     docstring): each stage's steps follow on from the last step of the one before. Returns the
     columns and the last stage's CSV path."""
-    stages = [s for s in str(run).split(",")] if "," in str(run) and not Path(run).exists() else [run]
-    if any(not str(s).strip() for s in stages):
-        raise ValueError(f"{run!r}: an empty stage; join run directories with commas, e.g. runs/a,runs/b")
     parts, offset = [], 0.0
-    for stage in stages:
-        csv_path = find_progress_csv(str(stage).strip())
+    for stage in run_stages(run):
+        csv_path = find_progress_csv(stage)
         columns = read_progress(csv_path)
         if X_KEY not in columns:
             raise EmptyLogError(f"{csv_path} has no {X_KEY} column")
@@ -169,8 +181,7 @@ def plot_run(run_dir_or_csv: str | os.PathLike, out: str | os.PathLike | None = 
         # One time axis for all panels, also for sparse ones (evaluations) that would zoom in.
         if hi > lo:
             ax.set_xlim(lo - 0.02 * (hi - lo), hi + 0.02 * (hi - lo))
-    name = " + ".join(Path(stage).name for stage in str(run_dir_or_csv).split(",")) if "," in str(run_dir_or_csv) \
-        else run_dir.name
+    name = run_name(run_dir_or_csv) if len(run_stages(run_dir_or_csv)) > 1 else run_dir.name
     fig.suptitle(f"{name}: {int(hi):,} timesteps")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -279,7 +290,7 @@ def plot_runs(runs, out: str | os.PathLike, labels=None, x: str = "timesteps", m
     runs = [str(r) for r in runs]
     if len(runs) < 2:
         raise ValueError("a comparison needs at least two runs")
-    labels = [" + ".join(Path(s).name for s in r.split(",")) for r in runs] if labels is None else list(labels)
+    labels = [run_name(r) for r in runs] if labels is None else list(labels)
     if len(labels) != len(runs):
         raise ValueError(f"{len(labels)} label(s) for {len(runs)} runs; give one label a run")
     if x not in X_AXES:

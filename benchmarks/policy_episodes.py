@@ -1,6 +1,7 @@
-"""What the episode-outcome benchmarks (`strike_outcomes.py`, `reach_outcomes.py`) share: their
-command line (a run, checkpoint or shipped name; how many episodes, worlds and the first seed) and
-the checkpoint loaded with its own env settings, refused if it was trained on another task."""
+"""What the episode-outcome benchmarks (`strike_outcomes.py`, `reach_outcomes.py`,
+`speed_outcomes.py`) share: their command line (a run, checkpoint or shipped name; how many
+episodes, worlds and the first seed) and the checkpoint loaded with its own env settings, refused
+if it was trained on another task."""
 
 from __future__ import annotations
 

@@ -205,18 +205,18 @@ def test_a_torso_touching_the_box_ends_the_episode_and_the_hand_does_not():
     env.close()
 
 
-def _refuses_a_speed_checkpoint(script, tmp_path, task: str) -> None:
+def _refuses_a_speed_checkpoint(script, tmp_path, task: str, other: str = "SMPL/Speed-v0") -> None:
     # The outcome benchmarks read their own task's info: another task's checkpoint is refused.
     import subprocess
     import sys
 
     from agents import PPO
 
-    speed = PPO("SMPL/Speed-v0", n_envs=1, n_steps=8, batch_size=8,
+    model = PPO(other, n_envs=1, n_steps=8, batch_size=8,
                 policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0, device="cpu")
-    speed.save(tmp_path / "speed.pt", optimizer=False)
-    speed.close()
-    out = subprocess.run([sys.executable, str(script), str(tmp_path / "speed.pt")], capture_output=True, text=True,
+    model.save(tmp_path / "other.pt", optimizer=False)
+    model.close()
+    out = subprocess.run([sys.executable, str(script), str(tmp_path / "other.pt")], capture_output=True, text=True,
                          timeout=600)
     assert out.returncode != 0 and f"not {task}" in out.stderr
 
@@ -283,6 +283,52 @@ def test_reach_outcomes_place_and_time_every_target(tmp_path):
     assert counts["all"] == counts.get("right-hand side (y < 0)", 0) + counts.get("across the body (y > 0)", 0)
     _refuses_a_speed_checkpoint(script, tmp_path, "SMPL/Reach-v0")
     model.close()
+
+
+def test_speed_outcomes_split_every_step_once(tmp_path):
+    # benchmarks/speed_outcomes.py: the summary of known steps, then a run of an untrained policy
+    # with commands redrawn every 5 steps, whose every step is counted once on each split (by
+    # commanded speed, by time since the draw, first command or later), and a Reach checkpoint
+    # refused.
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from agents import PPO
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "speed_outcomes.py"
+    sys.path.insert(0, str(script.parent))
+    try:
+        from speed_outcomes import summarise
+    finally:
+        sys.path.remove(str(script.parent))
+    rows = np.array([[0.5, 0.5, 0.0, 10.0, 0.0, 1],    # slow, just drawn, first: standing still
+                     [4.5, 1.5, 2.5, 170.0, 3.0, 0],   # fast, held, after a turn about
+                     [4.5, 2.5, 3.5, 20.0, 2.0, 0]])   # fast, held longer
+    table = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:7]] for line in summarise(rows)[2:]}
+    assert table["all"] == ["100.0%", "1.50", "1.67", "2.00", "2.90"]
+    assert table["commanded 4-5 m/s"] == ["66.7%", "2.00", "2.50", "2.00", "2.90"]
+    assert table["0-1 s after the draw"] == ["33.3%", "0.50", "0.00", "-", "-"]
+    assert table["turn asked over 135 deg"][:2] == ["33.3%", "1.50"]
+    assert "commanded 1-2 m/s" not in table
+
+    model = PPO("SMPL/Speed-v0", n_envs=1, env_kwargs={"resample_interval": (5, 5), "max_episode_steps": 32},
+                n_steps=8, batch_size=8, policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0,
+                device="cpu")
+    model.save(tmp_path / "speed.pt", optimizer=False)
+    model.close()
+    out = subprocess.run([sys.executable, str(script), str(tmp_path / "speed.pt"), "--episodes", "3",
+                          "--num-envs", "2"], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    share = {line.split("|")[1].strip(): float(line.split("|")[2].strip(" %")) for line in out.stdout.splitlines()
+             if line.startswith("| ") and not line.startswith("| steps")}
+    assert "3 episodes" in out.stdout and share["all"] == 100.0
+    # every command lasts 5 steps: the first 5 of each episode are its first command's
+    first, later = share["the episode's first command (standing start)"], share["later commands"]
+    assert abs(first + later - 100.0) < 0.2 and 0 < first < 100
+    since = [v for k, v in share.items() if "after the draw" in k]
+    assert abs(sum(since) - 100.0) < 0.3 and "1-2 s after the draw" not in share
+    _refuses_a_speed_checkpoint(script, tmp_path, "SMPL/Speed-v0", other="SMPL/Reach-v0")
 
 
 def test_a_box_too_close_to_start_clear_of_the_humanoid_is_refused():

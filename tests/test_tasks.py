@@ -1,6 +1,10 @@
 """Every registered task on the task-agnostic core: Gymnasium contracts, the goal tasks' rewards
 with known answers, their schedules, falls, bad input, and an outside client (SB3)."""
 
+import importlib
+import subprocess
+import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -205,62 +209,59 @@ def test_a_torso_touching_the_box_ends_the_episode_and_the_hand_does_not():
     env.close()
 
 
-def _refuses_a_speed_checkpoint(script, tmp_path, task: str, other: str = "SMPL/Speed-v0") -> None:
-    # The outcome benchmarks read their own task's info: another task's checkpoint is refused.
-    import subprocess
-    import sys
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
+
+def _outcome_summary(name: str):
+    """The `summarise` of benchmarks/<name>.py (the benchmarks folder is not a package)."""
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        return importlib.import_module(name).summarise
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+
+
+def _tiny_ppo(tmp_path, env_id: str, **env_kwargs) -> Path:
+    """An untrained PPO checkpoint for env_id, saved in tmp_path."""
     from agents import PPO
 
-    model = PPO(other, n_envs=1, n_steps=8, batch_size=8,
+    model = PPO(env_id, n_envs=1, env_kwargs=env_kwargs, n_steps=8, batch_size=8,
                 policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0, device="cpu")
-    model.save(tmp_path / "other.pt", optimizer=False)
+    path = tmp_path / f"{env_id.split('/')[1]}.pt"
+    model.save(path, optimizer=False)
     model.close()
-    out = subprocess.run([sys.executable, str(script), str(tmp_path / "other.pt")], capture_output=True, text=True,
-                         timeout=600)
-    assert out.returncode != 0 and f"not {task}" in out.stderr
+    return path
+
+
+def _run_outcomes(name: str, tmp_path, env_id: str, env_kwargs: dict, episodes: int, num_envs: int,
+                  other: str = "SMPL/Speed-v0") -> str:
+    """benchmarks/<name>.py on an untrained env_id policy: its output; and the script refuses a
+    checkpoint of another task (it reads its own task's info)."""
+    script = str(BENCHMARKS / f"{name}.py")
+    out = subprocess.run([sys.executable, script, str(_tiny_ppo(tmp_path, env_id, **env_kwargs)), "--episodes",
+                          str(episodes), "--num-envs", str(num_envs)], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    refused = subprocess.run([sys.executable, script, str(_tiny_ppo(tmp_path, other))], capture_output=True,
+                             text=True, timeout=600)
+    assert refused.returncode != 0 and f"not {env_id}" in refused.stderr
+    return out.stdout
 
 
 def test_strike_outcomes_splits_falls_from_fouls(tmp_path):
     # benchmarks/strike_outcomes.py on an untrained policy with the box next to it: every episode
     # is counted once, as a fall, a foul or a full one, and a non-Strike checkpoint is refused.
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    from agents import PPO
-
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "strike_outcomes.py"
-    model = PPO("SMPL/Strike-v0", n_envs=1, env_kwargs={"box_distance": (1.2, 1.3)}, n_steps=8, batch_size=8,
-                policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0, device="cpu")
-    model.save(tmp_path / "strike.pt", optimizer=False)
-    out = subprocess.run([sys.executable, str(script), str(tmp_path / "strike.pt"), "--episodes", "3",
-                          "--num-envs", "3"], capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0, out.stderr[-2000:]
+    stdout = _run_outcomes("strike_outcomes", tmp_path, "SMPL/Strike-v0", {"box_distance": (1.2, 1.3)}, 3, 3)
     counts = {line.split("|")[1].strip(): int(line.split("|")[4].split()[0])
-              for line in out.stdout.splitlines() if line.startswith(("| full", "| fall", "| foul"))}
+              for line in stdout.splitlines() if line.startswith(("| full", "| fall", "| foul"))}
     assert set(counts) == {"full", "fall", "foul"} and sum(counts.values()) == 3
-    assert "| all |" in out.stdout and "3 episodes" in out.stdout
-    _refuses_a_speed_checkpoint(script, tmp_path, "SMPL/Strike-v0")
-    model.close()
+    assert "| all |" in stdout and "3 episodes" in stdout
 
 
 def test_reach_outcomes_place_and_time_every_target(tmp_path):
     # benchmarks/reach_outcomes.py: the summary of known targets, then a run of an untrained policy
     # whose every target is counted once on each split (front / behind, side) and a non-Reach
     # checkpoint refused.
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    from agents import PPO
-
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "reach_outcomes.py"
-    sys.path.insert(0, str(script.parent))
-    try:
-        from reach_outcomes import summarise
-    finally:
-        sys.path.remove(str(script.parent))
+    summarise = _outcome_summary("reach_outcomes")
     rows = np.array([[0.5, -0.3, 0.1, 1.0, 0.05, 15],     # in front, right side, middle: reached in 0.5 s
                      [0.5, 0.3, 0.9, 1.8, 0.04, 45],      # in front, across, high: reached in 1.5 s
                      [-0.5, -0.3, -0.6, 0.3, 0.60, -1]])  # behind, low: missed
@@ -269,39 +270,20 @@ def test_reach_outcomes_place_and_time_every_target(tmp_path):
     assert [c.strip() for c in table["behind (x < 0)"]] == ["1", "0.0%", "0.600", "-"]
     assert [c.strip() for c in table["high (height >= 1.4 m)"]] == ["1", "100.0%", "0.040", "1.50"]
 
-    model = PPO("SMPL/Reach-v0", n_envs=1, env_kwargs={"resample_interval": (5, 5), "max_episode_steps": 32},
-                n_steps=8, batch_size=8, policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0,
-                device="cpu")
-    model.save(tmp_path / "reach.pt", optimizer=False)
-    out = subprocess.run([sys.executable, str(script), str(tmp_path / "reach.pt"), "--episodes", "3",
-                          "--num-envs", "2"], capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0, out.stderr[-2000:]
-    counts = {line.split("|")[1].strip(): int(line.split("|")[2]) for line in out.stdout.splitlines()
+    stdout = _run_outcomes("reach_outcomes", tmp_path, "SMPL/Reach-v0",
+                           {"resample_interval": (5, 5), "max_episode_steps": 32}, 3, 2)
+    counts = {line.split("|")[1].strip(): int(line.split("|")[2]) for line in stdout.splitlines()
               if line.startswith("| ") and not line.startswith("| targets")}
-    assert "3 episodes" in out.stdout and counts["all"] >= 3
+    assert "3 episodes" in stdout and counts["all"] >= 3
     assert counts["all"] == counts.get("in front (x > 0)", 0) + counts.get("behind (x < 0)", 0)
     assert counts["all"] == counts.get("right-hand side (y < 0)", 0) + counts.get("across the body (y > 0)", 0)
-    _refuses_a_speed_checkpoint(script, tmp_path, "SMPL/Reach-v0")
-    model.close()
 
 
 def test_speed_outcomes_split_every_step_once(tmp_path):
     # benchmarks/speed_outcomes.py: the summary of known steps, then a run of an untrained policy
     # with commands redrawn every 5 steps, whose every step is counted once on each split (by
-    # commanded speed, by time since the draw, first command or later), and a Reach checkpoint
-    # refused.
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    from agents import PPO
-
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "speed_outcomes.py"
-    sys.path.insert(0, str(script.parent))
-    try:
-        from speed_outcomes import summarise
-    finally:
-        sys.path.remove(str(script.parent))
+    # time since the draw, first command or later), and a Reach checkpoint refused.
+    summarise = _outcome_summary("speed_outcomes")
     rows = np.array([[0.5, 0.5, 0.0, 10.0, 0.0, 1],    # slow, just drawn, first: standing still
                      [4.5, 1.5, 2.5, 170.0, 3.0, 0],   # fast, held, after a turn about
                      [4.5, 2.5, 3.5, 20.0, 2.0, 0]])   # fast, held longer
@@ -312,23 +294,16 @@ def test_speed_outcomes_split_every_step_once(tmp_path):
     assert table["turn asked over 135 deg"][:2] == ["33.3%", "1.50"]
     assert "commanded 1-2 m/s" not in table
 
-    model = PPO("SMPL/Speed-v0", n_envs=1, env_kwargs={"resample_interval": (5, 5), "max_episode_steps": 32},
-                n_steps=8, batch_size=8, policy_kwargs={"actor_hidden": [16], "critic_hidden": [16]}, verbose=0,
-                device="cpu")
-    model.save(tmp_path / "speed.pt", optimizer=False)
-    model.close()
-    out = subprocess.run([sys.executable, str(script), str(tmp_path / "speed.pt"), "--episodes", "3",
-                          "--num-envs", "2"], capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0, out.stderr[-2000:]
-    share = {line.split("|")[1].strip(): float(line.split("|")[2].strip(" %")) for line in out.stdout.splitlines()
+    stdout = _run_outcomes("speed_outcomes", tmp_path, "SMPL/Speed-v0",
+                           {"resample_interval": (5, 5), "max_episode_steps": 32}, 3, 2, other="SMPL/Reach-v0")
+    share = {line.split("|")[1].strip(): float(line.split("|")[2].strip(" %")) for line in stdout.splitlines()
              if line.startswith("| ") and not line.startswith("| steps")}
-    assert "3 episodes" in out.stdout and share["all"] == 100.0
+    assert "3 episodes" in stdout and share["all"] == 100.0
     # every command lasts 5 steps: the first 5 of each episode are its first command's
     first, later = share["the episode's first command (standing start)"], share["later commands"]
     assert abs(first + later - 100.0) < 0.2 and 0 < first < 100
     since = [v for k, v in share.items() if "after the draw" in k]
     assert abs(sum(since) - 100.0) < 0.3 and "1-2 s after the draw" not in share
-    _refuses_a_speed_checkpoint(script, tmp_path, "SMPL/Speed-v0", other="SMPL/Reach-v0")
 
 
 def test_a_box_too_close_to_start_clear_of_the_humanoid_is_refused():

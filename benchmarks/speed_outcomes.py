@@ -49,15 +49,26 @@ def summarise(rows: np.ndarray) -> list[str]:
     return lines
 
 
-def _turn(obs: np.ndarray) -> np.ndarray:
+def _columns():
+    """The observation's target direction and target speed slices (Speed-v0's layout)."""
+    from smpl_envs.envs.speed import SpeedVecEnv
+    from smpl_envs.features import SELF_OBS_LAYOUT, layout_slices
+
+    where = layout_slices({"self": SELF_OBS_LAYOUT, **SpeedVecEnv.task_layout})
+    return where["task/target_dir"], where["task/target_speed"]
+
+
+def _turn(obs: np.ndarray, dir_cols: slice) -> np.ndarray:
     """The turn (degrees, 0-180) from the heading to the target direction the observation shows."""
-    return np.degrees(np.abs(np.arctan2(obs[:, 359], obs[:, 358])))
+    cos_sin = obs[:, dir_cols]
+    return np.degrees(np.abs(np.arctan2(cos_sin[:, 1], cos_sin[:, 0])))
 
 
 def main(argv=None) -> None:
     from smpl_envs.envs.base import CONTROL_FPS
 
     args, agent, ckpt, env, n = open_policy_env(__doc__, "SMPL/Speed-v0", argv)
+    dir_cols, speed_col = _columns()
     rows, falls, done, seed, dt = [], 0, 0, args.seed, 1.0 / CONTROL_FPS
     while done < args.episodes:
         take = min(n, args.episodes - done)
@@ -66,7 +77,7 @@ def main(argv=None) -> None:
         # Per world: the command's step of draw, the turn it asked (the observation shows a new
         # command, its direction in the heading frame, before the step that first measures it) and
         # whether it is the episode's first.
-        shown, turn = obs[:, 360].copy(), _turn(obs)
+        shown, turn = obs[:, speed_col].copy(), _turn(obs, dir_cols)
         drawn, first = np.zeros(n, int), np.ones(n, bool)
         pelvis = np.asarray(info["body_pos"])[:, 0, :2].copy()
         alive, t = np.arange(n) < take, 0
@@ -82,10 +93,10 @@ def main(argv=None) -> None:
             rows.append(np.stack([speed, err, (t - 1 - drawn) * dt, turn, made, first], -1)[alive])
             falls += int((term & alive).sum())
             alive &= ~(term | trunc)
-            changed = obs[:, 360] != shown  # drawn after this step: the next one is its first
-            turn, drawn = np.where(changed, _turn(obs), turn), np.where(changed, t, drawn)
+            changed = (obs[:, speed_col] != shown)[:, 0]  # drawn after this step: the next one is its first
+            turn, drawn = np.where(changed, _turn(obs, dir_cols), turn), np.where(changed, t, drawn)
             first &= ~changed
-            shown, pelvis = obs[:, 360].copy(), now.copy()
+            shown, pelvis = obs[:, speed_col].copy(), now.copy()
         done += take
     env.close()
     table = np.concatenate(rows).astype(float)

@@ -422,6 +422,11 @@ def test_the_latent_recipes_resolve(pulse_path):
     assert wide["env"]["kwargs"] == {"motions": None, "reward_sharpness": 1.0}
     assert sharp["env"]["kwargs"] == {"motions": None, "reward_sharpness": 4.0} and sharp["agent"] == wide["agent"]
     assert load_recipe("reach_pulse", over, "paper")["env"]["kwargs"]["reward_sharpness"] == 4.0
+    # The third stage pays precision (k = 16) at half the rate, otherwise the same agent.
+    precise = load_recipe("reach_pulse_precise", over)
+    assert precise["env"]["kwargs"] == {"motions": None, "reward_sharpness": 16.0}
+    assert precise["agent"]["hyperparams"]["learning_rate"] == 1e-4
+    assert {**precise["agent"]["hyperparams"], "learning_rate": 2e-4} == sharp["agent"]["hyperparams"]
     paper = load_recipe("pulse_distill", profile="paper")["agent"]["policy"]["kwargs"]
     assert paper["decoder_hidden"] == [3096, 2048, 1024] and paper["encoder_hidden"] == [1536, 1024, 512]
     if "pulse" not in agents.recipes.pretrained_checkpoints():  # until pulse.pt ships, a clear error

@@ -307,9 +307,10 @@ def test_the_exact_walk_guide_shows_the_same_clips_in_torch_as_in_numpy():
     env.close()
 
 
+@pytest.mark.parametrize("pace", ["brisk_direct", "quick_direct"])
 @pytest.mark.parametrize("turn", [60 * DEG, -150 * DEG, 180 * DEG])
-def test_direct_walks_head_straight_for_the_goal_while_they_turn(turn):
-    raw, steady = approach(turn, 2.0, pace="brisk_direct"), approach(turn, 2.0, pace="brisk")
+def test_direct_walks_head_straight_for_the_goal_while_they_turn(turn, pace):
+    raw, steady = approach(turn, 2.0, pace=pace), approach(turn, 2.0, pace="brisk")
     assert check_motion(raw).ok
     lib = MotionLib([raw])
     s = lib.body_state(np.arange(lib.lengths[0]))
@@ -324,3 +325,12 @@ def test_direct_walks_head_straight_for_the_goal_while_they_turn(turn):
     remaining = np.linalg.norm(pos - end, axis=-1)
     assert np.all(np.diff(remaining) < 0.01)
     assert _arrival(raw) < _arrival(steady)
+
+
+def test_quick_direct_walks_turn_faster_and_arrive_sooner_at_the_same_place():
+    for turn, soon in [(0.0, 0.2), (90 * DEG, 1.0), (-180 * DEG, 2.0)]:
+        brisk, quick = approach(turn, 3.0, pace="brisk_direct"), approach(turn, 3.0, pace="quick_direct")
+        assert _arrival(quick) < _arrival(brisk) - soon
+        ends = [MotionLib([r]).body_state(np.array([MotionLib([r]).lengths[0] - 1])) for r in (brisk, quick)]
+        np.testing.assert_allclose(ends[0].pos[0, 0, :2], ends[1].pos[0, 0, :2], atol=0.15)  # the grid stays put
+        assert abs(wrap_angle(heading_of(ends[0].rot)[0] - heading_of(ends[1].rot)[0])) < 5 * DEG

@@ -326,7 +326,8 @@ class RecoveryVecEnv(ImitationVecEnv):
     `smpl_envs.envs.getup_guide`), walk_guide (False; True: a walk to the goal shown to a standing
     body far from it: `smpl_envs.envs.walk_guide`; "brisk": the same at a quicker pace,
     `smpl_envs.motion.approach.PACES`; True is "steady"; "brisk_exact": brisk, ending on the goal;
-    "brisk_direct": that, heading straight for the goal), guide_basin (0: off; a reward weight w, with
+    "brisk_direct": that, heading straight for the goal; "quick_direct": that, turning faster),
+    guide_basin (0: off; a reward weight w, with
     getup_guide: w exp(-10 e) for a body shown a get-up, e its mean squared body coordinate error
     from the clip, a wide basin around the clip where the imitation terms are ~0), guide_restart
     (0.6 m: a guided body this far, in mean body distance, from its clip a second or more after

@@ -29,6 +29,8 @@ keep the pace and the rules they were trained with):
   spot as a far one is.
 * "brisk_direct" is "brisk_exact" with walks that head straight for the goal from the first step
   (`Pace.direct`), stepping sideways or backwards while the body turns to face it.
+* "quick_direct" is "brisk_direct" turning at twice its rate with shorter ramps (`Pace.turn_rate`,
+  `Pace.turn_speed`, `Pace.ramp`): a 3 m goal behind a body is reached 2.3 s sooner.
 
 While guided, the goal, the residual base and the imitation terms of the reward are the walk's,
 as with a get-up; the point reward towards the task's reference stays, and the evaluation is

@@ -37,8 +37,9 @@ STEP_DISTANCES = (0.5, 0.8, 1.1, 1.4)   # m; shorter steps slide a planted foot 
 @dataclasses.dataclass(frozen=True)
 class Pace:
     """How an approach is timed: `wait` s standing and `ready` s walking slowly before the turn,
-    `ramp` s from SLOW to the cruising speed (and back to standing), cruising at `distance /
-    cruise_time` m/s within [SLOW, top_speed]. Two rules of the walk guide: `early`, a walk
+    the turn at `turn_rate` rad/s walking at `turn_speed` m/s, `ramp` s from there to the cruising
+    speed (and back to standing), cruising at `distance / cruise_time` m/s within [turn_speed,
+    top_speed]. Two rules of the walk guide: `early`, a walk
     after a get-up sets off as soon as the get-up's clip stands still, not at its last frame;
     `exact`, a walk ends on the goal's pelvis, not within the grid's ~0.3 m of it, and a body
     back near its goal but off the spot is led onto it (`smpl_envs.envs.walk_guide`). `direct`
@@ -94,8 +95,9 @@ def approach(turn: float, distance: float, name: str = "approach", pace: str = "
         raise ValueError(f"approach: turn = {turn!r} must be an angle in [-pi, pi] radians")
     if not (np.isfinite(distance) and distance >= 0.3):
         raise ValueError(f"approach: distance = {distance!r} must be at least 0.3 m")
-    # People turn first, in small slow steps, then walk on: the turn is taken at SLOW m/s (0.27
-    # m/s^2 of lateral acceleration); short approaches never go faster than a few small steps need.
+    # People turn first, in small slow steps, then walk on: the turn is taken at the pace's
+    # turn_speed (SLOW by default: 0.27 m/s^2 of lateral acceleration at TURN_RATE); short
+    # approaches never go faster than a few small steps need.
     speed = float(np.clip(distance / pc.cruise_time, pc.turn_speed, pc.top_speed))
     turning = abs(turn) / pc.turn_rate
     sign = np.sign(turn)

@@ -327,9 +327,10 @@ class RecoveryVecEnv(ImitationVecEnv):
     body far from it: `smpl_envs.envs.walk_guide`; "brisk": the same at a quicker pace,
     `smpl_envs.motion.approach.PACES`; True is "steady"; "brisk_exact": brisk, ending on the goal;
     "brisk_direct": that, heading straight for the goal; "quick_direct": that, turning faster),
-    guide_basin (0: off; a reward weight w, with
-    getup_guide: w exp(-10 e) for a body shown a get-up, e its mean squared body coordinate error
-    from the clip, a wide basin around the clip where the imitation terms are ~0), guide_restart
+    guide_basin (0: off; a reward weight w, with getup_guide: w exp(-10 e) for a body shown a
+    get-up, e its mean squared body coordinate error from the clip, a wide basin around the clip
+    where the imitation terms are ~0; it pays nothing to a body shown a walk, so with fast walks
+    it can pay a body to fall: docs/results/learning.md), guide_restart
     (0.6 m: a guided body this far, in mean body distance, from its clip a second or more after
     the clip began is shown a new one), getup_blend (0 s: off; with getup_guide, a get-up starts from
     the body's own pose and fades into the clip's over this many seconds), guide_match (0 s: off; with

@@ -79,7 +79,7 @@ PACES["brisk_exact"] = dataclasses.replace(PACES["brisk"], exact=True)
 # time, and a 3 m goal behind a body is reached about a second sooner.
 PACES["brisk_direct"] = dataclasses.replace(PACES["brisk_exact"], direct=True, ready=0.0)
 # "quick_direct": brisk_direct turning twice as fast (90 deg/s) at 0.6 m/s instead of 0.35, with
-# 1.2 s ramps: a 3 m goal is within 0.45 m 0.3 s sooner straight ahead, 1.3 s sooner at 90 deg and
+# 1.2 s ramps and the top speed from 2.6 m on instead of 3.25: a 3 m goal is within 0.45 m 0.3 s sooner straight ahead, 1.3 s sooner at 90 deg and
 # 2.3 s sooner behind (2.8 / 3.8 / 4.8 s). Fallen+far trials of training/recovery_direct stand up
 # at about 5.3 s (median) and miss 10 s by 0.5-2 s. 1.0 s ramps or 1.5 m/s slide the clips' planted
 # feet in 14-31 of the 132 walks of the grid (check_motion); these settings in none.

@@ -15,7 +15,9 @@ below lists its keys. The pipeline, into one run directory:
    with the library's sampling weights putting weight 1 on the clips of Q_hard(k-1) and
    `primitive.rest_weight` (0) on the others (env kwarg `motion_weights`: a sampling weight, not a
    copied subset). It is evaluated on the whole set; the clips of Q_hard(k-1) it fails form
-   Q_hard(k).
+   Q_hard(k). `primitive.given` (checkpoints) stands for primitives 1, 2, ... instead of training
+   them, evaluated and mined all the same: an earlier run's primitives reused, so that another
+   recovery primitive or composer setting costs only the composer's training.
 3. recovery: the recovery primitive, a run of `recovery.recipe` started from the last primitive
    (`recovery.init: previous`, or a checkpoint), or a given checkpoint (`recovery.checkpoint`:
    e.g. a separate 4-hour run). `recovery: null` leaves it out.
@@ -34,7 +36,7 @@ stage's status, checkpoint and hard set), RUN/recipes/<stage>.yaml (the training
 stage ran), RUN/stages/<stage>/ (a trained stage is an ordinary run directory: config.yaml,
 checkpoints/, logs/, evals/, eval.json, curves.png; every stage also holds set_eval.json/.txt,
 its evaluation on the whole set, and the recovery stage and the composer recovery_eval.json).
-A given stage (primitive0, a given recovery primitive) holds a copy of its checkpoint as
+A given stage (primitive0, a given primitive or recovery primitive) holds a copy of its checkpoint as
 checkpoints/best.pt. `smpl-envs eval` and `record` take RUN/stages/<stage> and RUN/pmcp.pt as
 they take any run.
 
@@ -70,7 +72,8 @@ DEFAULTS: dict[str, Any] = {
     "max_primitives": 3,        # hard-clip primitives after primitive0 (PHC: 4 primitives in all, recovery one)
     "eval": {"num_envs": 16, "threshold": 0.5, "recovery_trials": 64},
     "primitive": {"recipe": "tracker_ppo", "set": [], "rest_weight": 0.0,
-                  "lateral": False},      # True: a progressive column beside the one before; False: its copy
+                  "lateral": False,       # True: a progressive column beside the one before; False: its copy
+                  "given": []},           # checkpoints that stand for primitives 1, 2, ... instead of training them
     "recovery": {"recipe": "recovery_tracker_ppo", "set": [], "init": "previous", "checkpoint": None},
     "composer": {"recipe": "composer_ppo", "set": []},
     "perpetual": {"motions": "corpus:test", "minutes": 5.0, "trials": 1, "shoves": True},
@@ -160,6 +163,11 @@ def check_pipeline(raw: dict) -> dict:
         if stage == "recovery" and spec["checkpoint"] is not None:
             continue
         load_recipe(spec["recipe"], spec["set"])  # a bad stage recipe fails now, not hours in
+    given = out["primitive"]["given"]
+    if not isinstance(given, list) or not all(isinstance(g, str) for g in given):
+        raise RecipeError(f"primitive.given must be a list of checkpoints (names, .pt files, run directories), got {given!r}")
+    if len(given) > n:
+        raise RecipeError(f"primitive.given names {len(given)} primitives, more than max_primitives={n}")
     if not isinstance(out["primitive"]["lateral"], bool):
         raise RecipeError(f"primitive.lateral must be true or false, got {out['primitive']['lateral']!r}")
     w = out["primitive"]["rest_weight"]
@@ -279,7 +287,8 @@ class Pipeline:
             state = json.loads(self.state_path.read_text())
             if state.get("format") != FORMAT:
                 raise RecipeError(f"{self.state_path} is not a pipeline state of this version ({FORMAT})")
-            old = state["recipe"]
+            # Filled in again with today's defaults: a key added since the run began is no change.
+            old = {**check_pipeline(state["recipe"]), "name": state["recipe"].get("name")}
             if old != self.spec:
                 key = next(k for k in set(old) | set(self.spec) if old.get(k) != self.spec.get(k))
                 raise RecipeError(f"{self.run_dir} holds a pipeline made with another recipe ({key}: "
@@ -313,8 +322,10 @@ class Pipeline:
     # --- the run
     def run(self) -> int:
         spec = self.spec
-        if spec["recovery"] is not None and spec["recovery"]["checkpoint"] is not None:
-            find_checkpoint(spec["recovery"]["checkpoint"])  # a missing one fails now, not after the primitives
+        for target in spec["primitive"]["given"] + [(spec["recovery"] or {}).get("checkpoint")]:
+            if target is not None:  # a missing one fails now, not after an hour of stages
+                composer, index = split_primitive_target(target)
+                find_checkpoint(composer) if index is None else primitive_agent(find_checkpoint(composer), index)
         p0 = self._stage("primitive0", kind="primitive", index=0, trained_on=None)
         if p0["status"] == "new":
             self._given(p0, spec["primitive0"])
@@ -326,9 +337,13 @@ class Pipeline:
                 break
             name = f"primitive{k}"
             stage = self._stage(name, kind="primitive", index=k, trained_on=previous["hard"])
-            rc = self._train(stage, lambda: self._primitive_recipe(previous))
-            if rc:
-                return rc
+            if k <= len(spec["primitive"]["given"]):
+                if stage["status"] == "new":
+                    self._given(stage, spec["primitive"]["given"][k - 1])
+            else:
+                rc = self._train(stage, lambda: self._primitive_recipe(previous))
+                if rc:
+                    return rc
             self._evaluate_set(stage, within=stage["trained_on"])
             primitives.append(name)
         if spec["recovery"] is not None:
@@ -360,13 +375,20 @@ class Pipeline:
         return 0
 
     def _given(self, stage: dict, target: str) -> None:
-        """A stage whose policy is a given checkpoint: a copy of it as the stage's
-        checkpoints/best.pt, so the stage evaluates and records like a trained one."""
-        source = find_checkpoint(target)
+        """A stage whose policy is a given checkpoint (or a composer's primitive, `COMPOSER#k`): a
+        copy of it as the stage's checkpoints/best.pt, so the stage evaluates and records like a
+        trained one."""
         copy_path = self.stages / stage["name"] / "checkpoints" / "best.pt"
         copy_path.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(source, copy_path)
-        stage.update(source=str(source.resolve()), checkpoint=str(copy_path.resolve()), status="trained")
+        composer, index = split_primitive_target(target)
+        if index is None:
+            source = find_checkpoint(target)
+            shutil.copyfile(source, copy_path)
+        else:
+            source = find_checkpoint(composer)
+            primitive_agent(source, index).save(copy_path, optimizer=False)
+        stage.update(source=str(source.resolve()) + ("" if index is None else f"#{index}"),
+                     checkpoint=str(copy_path.resolve()), status="trained")
         self._write()
 
     # --- training a stage
@@ -549,6 +571,41 @@ def _check_action_settings(checkpoint: str, env_id: str, kwargs: dict, message):
     return agent, theirs
 
 
+def split_primitive_target(target: str) -> tuple[str, int | None]:
+    """("pmcp", 1) for "pmcp#1" (a composer's primitive 1); (target, None) for anything else."""
+    base, sep, index = str(target).rpartition("#")
+    return (base, int(index)) if sep and base and index.isdigit() else (str(target), None)
+
+
+def primitive_agent(composer_checkpoint: str | os.PathLike, index: int):
+    """Primitive `index` of a composer checkpoint as an agent of its own: the primitive's weights
+    (its normaliser included) with the composer's imitation settings, which every hard-clip
+    primitive shares with it (checked when the composer was built). The last primitive of a
+    composer that recovers is its recovery primitive, whose guide settings the composer keeps only
+    for its env: it is refused (give the recovery primitive's own checkpoint)."""
+    import agents
+
+    agent = agents.load(composer_checkpoint, device="cpu", verbose=0, tensorboard=False)
+    if not isinstance(agent.policy, agents.Composer):
+        raise RecipeError(f"{composer_checkpoint} holds a policy of class {type(agent.policy).__name__}, not a Composer; "
+                          "COMPOSER#k names a composer's primitive k")
+    k = agent.policy.num_primitives
+    recovers = bool(agent.env_kwargs.get("recovery"))
+    usable = k - 1 if recovers else k
+    if not 0 <= index < usable:
+        raise RecipeError(f"{composer_checkpoint}#{index}: the composer has {k} primitives"
+                          + (f", the last of them its recovery primitive; hard-clip primitives are #0 to #{usable - 1}"
+                             if recovers else f" (#0 to #{k - 1})"))
+    primitive = agent.policy.primitives[index]
+    record = agents.policies.policy_record(primitive)
+    policy = agents.policies.make_policy(record["class"], primitive.obs_dim, primitive.action_space, record["kwargs"])
+    policy.load_state_dict(primitive.state_dict())
+    agent.policy = policy
+    agent.env_kwargs = {key: v for key, v in agent.env_kwargs.items() if key != "recovery"}
+    agent.num_timesteps = 0
+    return agent
+
+
 def _rows(path: Path) -> list[dict]:
     return json.loads(Path(path).read_text())["clips"]
 
@@ -638,4 +695,5 @@ def perpetual_checkpoint(target: str | Path, *, which: str = "best", options: di
 
 
 __all__ = ["pmcp", "Pipeline", "load_pipeline", "check_pipeline", "hard_clips", "success_on", "evaluate_as",
-           "settings_for", "recovery_settings", "summary_tables", "perpetual_checkpoint", "DEFAULTS"]
+           "settings_for", "recovery_settings", "summary_tables", "perpetual_checkpoint", "primitive_agent",
+           "split_primitive_target", "DEFAULTS"]

@@ -11,12 +11,14 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 import yaml
 
 import agents
 import smpl_envs  # noqa: F401
 from agents.cli import main
-from agents.pmcp import Pipeline, check_pipeline, hard_clips, load_pipeline, settings_for, success_on
+from agents.pmcp import (Pipeline, check_pipeline, hard_clips, load_pipeline, primitive_agent, settings_for,
+                         split_primitive_target, success_on)
 from agents.recipes import RecipeError, find_checkpoint
 from smpl_envs.perpetual import (PerpetualResult, chained_reference, check_options, count_losses, heading,
                                  perpetual_env_kwargs)
@@ -100,6 +102,8 @@ def test_the_shipped_pipeline_recipe_loads():
     ({"primitive": {"recipe": "walk_residual_ppo", "sett": []}}, r"\['primitive.sett'\]"),
     ({"composer": {"recipe": "composer_ppo", "set": ["agent.hyperparams.learnin_rate=1"]}}, "learnin_rate"),
     ({"perpetual": {"minutes": -2}}, "perpetual: minutes must be a positive number"),
+    ({"primitive": {"recipe": "walk_residual_ppo", "given": "walk"}}, "primitive.given must be a list"),
+    ({"primitive": {"recipe": "walk_residual_ppo", "given": ["walk", "walk"]}}, "more than max_primitives=1"),
 ])
 def test_pipeline_recipe_mistakes_are_named(change, message):
     with pytest.raises((RecipeError, TypeError), match=message):
@@ -136,6 +140,11 @@ def test_a_run_directory_keeps_its_recipe(tmp_path):
     Pipeline(load_pipeline(write(tmp_path)), run)  # the same recipe: the same pipeline
     with pytest.raises(RecipeError, match=r"another recipe \(max_primitives: 1 there, 2 now\)"):
         Pipeline(load_pipeline(write(tmp_path), ["max_primitives=2"]), run)
+    # A run begun before a key existed resumes: its stored recipe is filled in with the defaults.
+    state = json.loads((run / "state.json").read_text())
+    del state["recipe"]["primitive"]["given"]
+    (run / "state.json").write_text(json.dumps(state))
+    Pipeline(load_pipeline(write(tmp_path)), run)
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "x.txt").write_text("x")
     with pytest.raises(RecipeError, match="holds no pipeline state"):
@@ -277,3 +286,45 @@ def test_the_pipeline_end_to_end_stopped_and_resumed(tmp_path, monkeypatch, caps
                  "--out", str(tmp_path / "p0.mp4")]) == 0
     # The command again: nothing left to do, the same tables.
     assert main(command) == 0
+
+
+def test_a_given_primitive_stands_in_for_training(tmp_path):
+    """`primitive.given`: an earlier run's primitive is evaluated and mined like a trained one,
+    and only the composer trains."""
+    spec = {**PIPELINE, "primitive": {**PIPELINE["primitive"], "given": ["walk"]}, "recovery": None, "perpetual": None}
+    run = tmp_path / "pmcp"
+    assert main(["pmcp", str(write(tmp_path, spec)), "--run-dir", str(run), "--quiet", "--no-progress",
+                 "--threads", "1"]) == 0
+    state = json.loads((run / "state.json").read_text())
+    assert state["order"] == ["primitive0", "primitive1", "composer"] and state["done"]
+    p1 = state["stages"]["primitive1"]
+    assert p1["source"] == str(find_checkpoint("walk").resolve()) and p1["trained_on"] == ["jump"]
+    assert p1["hard"] == ["jump"]  # mined within Q_hard(0) as a trained primitive is
+    assert not (run / "stages" / "primitive1" / "config.yaml").exists()  # not trained
+    assert not (run / "recipes" / "primitive1.yaml").exists()
+    composed = agents.load(run / "pmcp.pt")
+    given = agents.load(find_checkpoint("walk")).policy.state_dict()
+    inside = composed.policy.primitives[1].state_dict()
+    assert composed.policy.num_primitives == 2 and all(torch.equal(given[k], inside[k]) for k in given)
+    with pytest.raises(RecipeError, match="no_such_run"):
+        Pipeline(load_pipeline(write(tmp_path, {**spec, "primitive": {**spec["primitive"], "given": ["no_such_run"]}},
+                                     "missing.yaml")), tmp_path / "missing").run()
+
+
+def test_a_composer_s_primitive_as_an_agent_of_its_own():
+    """`COMPOSER#k`: the shipped composer's primitive 1 with the composer's imitation settings; its
+    recovery primitive (the last) and a policy that is no composer are refused by name."""
+    assert split_primitive_target("pmcp#1") == ("pmcp", 1) and split_primitive_target("runs/a#b") == ("runs/a#b", None)
+    composer = agents.load(find_checkpoint("pmcp"), device="cpu")
+    agent = primitive_agent(find_checkpoint("pmcp"), 1)
+    inside = composer.policy.primitives[1].state_dict()
+    assert all(torch.equal(v, inside[k]) for k, v in agent.policy.state_dict().items())
+    assert "recovery" not in agent.env_kwargs and agent.env_kwargs["residual_scale"] == composer.env_kwargs["residual_scale"]
+    obs = np.random.default_rng(0).normal(size=(3, agent.obs_dim)).astype(np.float32)
+    x = torch.as_tensor(obs)
+    inner = composer.policy.primitives[1]
+    assert np.array_equal(agent.predict(obs)[0], inner.env_action(inner.act(x), x).numpy())
+    with pytest.raises(RecipeError, match="the last of them its recovery primitive"):
+        primitive_agent(find_checkpoint("pmcp"), composer.policy.num_primitives - 1)
+    with pytest.raises(RecipeError, match="not a Composer"):
+        primitive_agent(find_checkpoint("walk"), 0)

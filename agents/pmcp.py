@@ -572,7 +572,10 @@ def _check_action_settings(checkpoint: str, env_id: str, kwargs: dict, message):
 
 
 def split_primitive_target(target: str) -> tuple[str, int | None]:
-    """("pmcp", 1) for "pmcp#1" (a composer's primitive 1); (target, None) for anything else."""
+    """("pmcp", 1) for "pmcp#1" (a composer's primitive 1); (target, None) for anything else,
+    a path that exists included."""
+    if Path(target).exists():
+        return str(target), None
     base, sep, index = str(target).rpartition("#")
     return (base, int(index)) if sep and base and index.isdigit() else (str(target), None)
 
@@ -600,7 +603,7 @@ def primitive_agent(composer_checkpoint: str | os.PathLike, index: int):
     record = agents.policies.policy_record(primitive)
     policy = agents.policies.make_policy(record["class"], primitive.obs_dim, primitive.action_space, record["kwargs"])
     policy.load_state_dict(primitive.state_dict())
-    agent.policy = policy
+    agent._build(primitive.obs_dim, primitive.action_space, policy)  # its own optimiser, over its weights
     agent.env_kwargs = {key: v for key, v in agent.env_kwargs.items() if key != "recovery"}
     agent.num_timesteps = 0
     return agent

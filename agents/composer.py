@@ -20,8 +20,15 @@ Composition, per action dimension j (i over the primitives, each a Gaussian N(mu
   (`log_std_init`, PHC's -2.9).
 
 C(s) is an MLP over the observation with a non-negative output: "sigmoid" (MCP's, the default:
-each weight in (0, 1)), "relu" (PHC's code) or "softplus". Its last layer starts near zero, so the
-first composite is the primitives' even mixture. A critic MLP of the same input gives the value
+each weight in (0, 1)), "relu" (PHC's code), "softplus", or "softmax" (weights that sum to 1). Its
+last layer starts near zero, so the first composite is the primitives' even mixture.
+
+Why softmax: a sigmoid weight reaches 0 only at a logit of minus infinity, so a sigmoid composer
+hands a state to one primitive only as far as its other weights have been driven down. Measured
+on the shipped `pmcp` (three primitives), its tracker kept a weight of about 0.6 on a body lying
+on the floor beside the recovery primitive's 0.97: a third of every get-up action was the
+tracker's. With softmax a logit gap of 5 gives one primitive 99 %, and with PHC's one std for
+every primitive the composite std stays the primitives' (sum C_i = 1). A critic MLP of the same input gives the value
 (in normalised return units when `normalize_value`).
 
 Observations: the rollout stores raw observations (`normalize` is the identity), because each
@@ -54,7 +61,8 @@ from .normalizer import RunningNorm
 from .policies import register_policy
 
 COMPOSITIONS = ("multiplicative", "additive")
-WEIGHT_ACTIVATIONS = {"sigmoid": torch.sigmoid, "relu": F.relu, "softplus": F.softplus}
+WEIGHT_ACTIVATIONS = {"sigmoid": torch.sigmoid, "relu": F.relu, "softplus": F.softplus,
+                      "softmax": lambda logits: torch.softmax(logits, dim=-1)}
 _TINY = 1e-12  # keeps the composite finite where every weight is 0 (a dead ReLU)
 
 
@@ -82,7 +90,7 @@ class Composer(ValueCritic, Policy):
     names them as {checkpoint: NAME_OR_PATH}), composition ("multiplicative" or "additive"),
     actor_hidden (the composer network C's hidden sizes, named as the actor-critic's so profiles
     rescale both alike; PHC: [1024, 512]), critic_hidden, activation, weight_activation
-    ("sigmoid", "relu" or "softplus"), log_std_init (the additive form's fixed log std, and the
+    ("sigmoid", "relu", "softplus" or "softmax"), log_std_init (the additive form's fixed log std, and the
     std of a primitive that is not Gaussian over the env's actions), normalize_value.
     """
 

@@ -63,13 +63,32 @@ def test_the_multiplicative_formula_on_two_known_gaussians():
 def test_weights_are_non_negative_and_start_as_an_even_mix():
     torch.manual_seed(0)
     obs = torch.randn(64, 3) * 10
-    for activation in ("sigmoid", "relu", "softplus"):
+    for activation in ("sigmoid", "relu", "softplus", "softmax"):
         comp = Composer(3, 2, primitives=[gaussian([0.0, 0.0], [0.1, 0.1])] * 2, actor_hidden=[8], critic_hidden=[4],
                         weight_activation=activation)
         w = comp.weights(obs)
         assert w.shape == (64, 2) and (w >= 0).all()
     sigmoid = Composer(3, 2, primitives=[gaussian([0.0, 0.0], [0.1, 0.1])] * 2, actor_hidden=[8], critic_hidden=[4])
     assert torch.allclose(sigmoid.weights(obs), torch.tensor(0.5), atol=0.05)  # small last layer
+
+
+def test_softmax_weights_sum_to_one_and_keep_the_primitives_std():
+    torch.manual_seed(0)
+    obs = torch.randn(64, 3) * 10
+    three = [gaussian([0.0, 1.0], [0.1, 0.1]), gaussian([0.5, 0.0], [0.1, 0.1]), gaussian([-1.0, 0.0], [0.1, 0.1])]
+    comp = Composer(3, 2, primitives=three, actor_hidden=[8], critic_hidden=[4], weight_activation="softmax")
+    w = comp.weights(obs)
+    torch.testing.assert_close(w.sum(1), torch.ones(64))
+    assert torch.allclose(w, torch.tensor(1 / 3), atol=0.05)  # small last layer: the even mix
+    torch.testing.assert_close(comp.action_distribution(obs).stddev, torch.full((64, 2), 0.1))
+    # A logit gap of 10 hands the state to one primitive, which a sigmoid's other weights would not.
+    with torch.no_grad():
+        comp.weight_net[-1].weight.zero_()
+        comp.weight_net[-1].bias.copy_(torch.tensor([0.0, 0.0, 10.0]))
+    torch.testing.assert_close(comp.action_distribution(obs).mean, torch.tensor([[-1.0, 0.0]]).expand(64, -1),
+                               atol=1e-3, rtol=0)
+    comp.weight_activation = "sigmoid"  # the same logits through sigmoids: 1/3 of the mean is the others'
+    assert (comp.action_distribution(obs).mean[:, 0] > -0.9).all()
 
 
 def primitives() -> list:

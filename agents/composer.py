@@ -30,8 +30,10 @@ on the floor beside the recovery primitive's 0.97, so a third of every get-up ac
 tracker's, and got up in 76 % of trials against its recovery primitive's 90 %; trained on with
 softmax it got up in 88.5 % (docs/pmcp.md). With softmax a logit gap of 5 gives one primitive
 99 %, and with PHC's one std for every primitive the composite std stays the primitives'
-(sum C_i = 1). A critic MLP of the same input gives the value
-(in normalised return units when `normalize_value`).
+(sum C_i = 1).
+
+A critic MLP of the same input as C gives the value (in normalised return units when
+`normalize_value`).
 
 Observations: the rollout stores raw observations (`normalize` is the identity), because each
 primitive normalises its input with its own frozen statistics; C and the critic read the
